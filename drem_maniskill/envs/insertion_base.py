@@ -1,0 +1,447 @@
+"""Shared base of our contact-rich insertion tasks (PegInHole-v1, USBInsertion-v1).
+
+A Panda stands at the world origin and holds a part (welded to its hand) above a socket that
+lies on the floor in front of it. Frames:
+
+* the **socket frame** sits at the centre of the socket's opening on its top face, z up;
+  the part goes in along -z;
+* the **part frame** sits at the centre of the part's tip, z up (away from the tip). When the
+  part is fully aligned, its frame and the socket frame have the same orientation.
+
+Subclasses give the geometry (``_build_part``, ``_build_socket``, class constants) and, for a
+keyed part, the orientation tolerance. Everything here is batched over ``num_envs``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Optional
+
+import numpy as np
+import sapien
+import torch
+
+from mani_skill.agents.controllers.utils.kinematics import Kinematics
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.sensors.camera import CameraConfig
+from mani_skill.utils import sapien_utils
+from mani_skill.utils.building.ground import build_ground
+from mani_skill.utils.geometry.rotation_conversions import (
+    axis_angle_to_quaternion,
+    quaternion_to_matrix,
+)
+from mani_skill.utils.structs import Actor, Pose
+from mani_skill.utils.structs.drive import Drive
+from mani_skill.utils.structs.types import SceneConfig, SimConfig
+
+from drem_maniskill.envs.agent import FULL_URDF, PandaInsertion
+from drem_maniskill.envs.ft_sensor import WristFTSensor
+
+RENDER_STYLES = ("lean", "full")
+# Group-2 collision bit shared by the robot and the held part: they never collide with each
+# other (the part is welded to the hand, so finger contact would only fight the weld).
+_HELD_PART_BIT = 28
+
+# Hand-frame (z towards the fingers) pose of the TCP, from Panda's URDF.
+_TCP_IN_HAND = 0.1034
+# Part frame in TCP frame: the TCP points down (z), the part frame points up.
+_FLIP_X = [0.0, 1.0, 0.0, 0.0]
+
+
+def _yaw_quat(yaw: torch.Tensor) -> torch.Tensor:
+    """Quaternions ``[B, 4]`` (wxyz) of rotations by ``yaw`` about world z."""
+    axis = torch.zeros(yaw.shape[0], 3, device=yaw.device)
+    axis[:, 2] = yaw
+    return axis_angle_to_quaternion(axis)
+
+
+class InsertionEnv(BaseEnv):
+    """Base class: a held part, a socket, two cameras and a wrist F/T sensor."""
+
+    SUPPORTED_ROBOTS = ["panda_insertion", "panda"]
+    agent: PandaInsertion
+
+    # One place to add a reward mode: name -> method computing a [num_envs] tensor.
+    REWARD_FUNCTIONS = {
+        "sparse": "compute_sparse_reward",
+        "dense": "compute_dense_reward",
+        "normalized_dense": "compute_normalized_dense_reward",
+        "none": "_zero_reward",
+    }
+    SUPPORTED_REWARD_MODES = tuple(REWARD_FUNCTIONS)
+
+    # --- geometry, set by subclasses (metres, radians) ---
+    default_clearance: float = 0.0
+    hole_depth: float = 0.0
+    part_length_below_tcp: float = 0.0  # from the TCP to the part tip, along the approach axis
+    grip_half_width: float = 0.0  # finger joint position that touches the part
+    socket_height: float = 0.0  # socket top face above the floor
+    part_radial_tolerance: float = 0.0  # tip-to-axis distance that still counts as "in the bore"
+    yaw_symmetry: int = 0  # 0: round part (yaw free); k: part repeats every 2*pi/k
+    max_yaw_error: float = np.pi  # insertion tolerance on yaw (keyed parts)
+
+    # --- randomization and start region ---
+    socket_center = (0.55, 0.0)
+    socket_xy_range = 0.02
+    socket_yaw_range = np.deg2rad(15)
+    start_xy_range = 0.02
+    start_yaw_range = np.deg2rad(10)
+    start_height_range = (0.045, 0.07)  # tip above the socket's top face
+    start_region_height = 0.03  # tip higher than this above the socket top: "start region"
+    success_depth_fraction = 0.8
+
+    ft_link = "panda_hand"
+
+    def __init__(
+        self,
+        *args,
+        robot_uids="panda_insertion",
+        control_mode: Optional[str] = "pd_ee_delta_pose",
+        clearance: Optional[float] = None,
+        randomize_colors: bool = True,
+        render_style: str = "lean",
+        ft_history: int = 8,
+        reconfiguration_freq: Optional[int] = None,
+        reward_mode: Optional[str] = None,
+        **kwargs,
+    ):
+        self.clearance = self._check_clearance(self.default_clearance if clearance is None else clearance)
+        if render_style not in RENDER_STYLES:
+            raise ValueError(f"render_style must be one of {RENDER_STYLES}, got {render_style!r}")
+        if reward_mode is not None and reward_mode not in self.SUPPORTED_REWARD_MODES:
+            raise ValueError(
+                f"Unknown reward_mode {reward_mode!r} for {type(self).__name__}. "
+                f"Choose one of {list(self.SUPPORTED_REWARD_MODES)}, "
+                f"e.g. gym.make(..., reward_mode='dense')."
+            )
+        if int(ft_history) < 1:
+            raise ValueError(f"ft_history must be a positive number of readings, got {ft_history}")
+        self.randomize_colors = bool(randomize_colors)
+        self.render_style = render_style
+        self.ft_history = int(ft_history)
+        # Rebuilding the scene costs 160-300 ms on this CPU; colours and poses change without it.
+        if reconfiguration_freq is None:
+            reconfiguration_freq = 0
+        super().__init__(
+            *args,
+            robot_uids=robot_uids,
+            control_mode=control_mode,
+            reconfiguration_freq=reconfiguration_freq,
+            reward_mode=reward_mode,
+            **kwargs,
+        )
+
+    def _check_clearance(self, clearance: float) -> float:
+        clearance = float(clearance)
+        if not np.isfinite(clearance) or clearance <= 0 or clearance > 0.02:
+            raise ValueError(
+                f"clearance must be a positive diametral gap in metres below 0.02 "
+                f"(the paper uses {self.default_clearance}), got {clearance!r}"
+            )
+        return clearance
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def _default_sim_config(self):
+        # Paper: torques at 100 Hz, policy at 5 Hz. A small contact offset keeps the many
+        # socket pieces from all generating contacts at once.
+        return SimConfig(
+            sim_freq=100,
+            control_freq=5,
+            scene_config=SceneConfig(contact_offset=0.004, solver_position_iterations=20),
+        )
+
+    @property
+    def _default_sensor_configs(self):
+        target = [self.socket_center[0], self.socket_center[1], self.socket_height + 0.04]
+        eye = [target[0] + 0.22, target[1] - 0.22, target[2] + 0.2]
+        fixed = CameraConfig("fixed_camera", sapien_utils.look_at(eye, target), 128, 128, np.deg2rad(45), 0.01, 10)
+        # In the hand frame z points to the fingers: look past the fingertips at the part tip.
+        wrist_pose = sapien_utils.look_at([0.07, 0.0, 0.02], [0.0, 0.0, _TCP_IN_HAND + self.part_length_below_tcp + 0.05], up=[1, 0, 0])
+        wrist = CameraConfig(
+            "wrist_camera",
+            wrist_pose,
+            128,
+            128,
+            np.deg2rad(70),
+            0.01,
+            10,
+            mount=self.agent.robot.links_map["panda_hand"],
+        )
+        return [fixed, wrist]
+
+    @property
+    def _default_human_render_camera_configs(self):
+        target = [self.socket_center[0], self.socket_center[1], self.socket_height + 0.05]
+        pose = sapien_utils.look_at([target[0] + 0.45, target[1] - 0.5, target[2] + 0.4], target)
+        return CameraConfig("render_camera", pose, 384, 384, np.deg2rad(50), 0.01, 10)
+
+    # ------------------------------------------------------------------ scene
+    def _load_agent(self, options: dict):
+        PandaInsertion.render_style = self.render_style
+        super()._load_agent(options, sapien.Pose())
+
+    def _load_lighting(self, options: dict):
+        shadow = self.render_style == "full" and self.enable_shadow
+        self.scene.set_ambient_light([0.35, 0.35, 0.35])
+        self.scene.add_directional_light([0.5, 0.3, -1], [1.2, 1.2, 1.2], shadow=shadow, shadow_scale=2, shadow_map_size=1024)
+        if self.render_style == "full":
+            self.scene.add_directional_light([0, 0, -1], [0.6, 0.6, 0.6])
+
+    def _load_scene(self, options: dict):
+        if self.render_style == "full":
+            self.ground = build_ground(self.scene)
+        else:
+            builder = self.scene.create_actor_builder()
+            builder.add_plane_collision(sapien.Pose(q=[0.7071068, 0, -0.7071068, 0]))
+            builder.add_box_visual(
+                sapien.Pose([0.3, 0, -0.005]), [1.0, 1.0, 0.005],
+                material=sapien.render.RenderMaterial(base_color=[0.55, 0.57, 0.6, 1]),
+            )
+            builder.initial_pose = sapien.Pose()
+            self.ground = builder.build_static(name="ground")
+
+        # One actor per sub-scene so every env has its own render materials to recolour.
+        parts, sockets = [], []
+        self._part_materials, self._socket_materials = [], []
+        for i in range(self.num_envs):
+            part_mat = sapien.render.RenderMaterial(base_color=[0.85, 0.45, 0.1, 1], roughness=0.5)
+            socket_mat = sapien.render.RenderMaterial(base_color=[0.2, 0.35, 0.75, 1], roughness=0.6)
+            builder = self._build_part(part_mat)
+            builder.set_scene_idxs([i])
+            builder.initial_pose = sapien.Pose(p=[0.3, 0, 0.5])
+            parts.append(builder.build(name=f"part-{i}"))
+            builder = self._build_socket(socket_mat)
+            builder.set_scene_idxs([i])
+            builder.initial_pose = sapien.Pose(p=[*self.socket_center, 0])
+            sockets.append(builder.build_kinematic(name=f"socket-{i}"))
+            self._part_materials.append(part_mat)
+            self._socket_materials.append(socket_mat)
+        self.part = Actor.merge(parts, name="part")
+        self.socket = Actor.merge(sockets, name="socket")
+        for body in self.part._bodies:
+            body.disable_gravity = True  # held: the wrist should read ~0 in free space
+
+        # The robot holds the part with a locked joint from its hand to the part frame.
+        self.part.set_collision_group_bit(2, _HELD_PART_BIT, 1)
+        for link in self.agent.robot.links:
+            link.set_collision_group_bit(2, _HELD_PART_BIT, 1)
+        hand = self.agent.robot.links_map["panda_hand"]
+        self.part_in_hand = sapien.Pose(p=[0, 0, _TCP_IN_HAND + self.part_length_below_tcp], q=_FLIP_X)
+        self.grip = Drive.create_from_actors_or_links(self.scene, hand, self.part_in_hand, self.part, sapien.Pose())
+        for drive in self.grip._objs:
+            for axis in ("x", "y", "z"):
+                getattr(drive, f"set_limit_{axis}")(0, 0)
+            # PhysX ignores zero-angle swing limits; a stiff slerp drive holds the orientation.
+            drive.set_drive_property_slerp(1e3, 1.0)
+            drive.set_drive_target(sapien.Pose())
+
+    def _after_reconfigure(self, options: dict):
+        super()._after_reconfigure(options)
+        robot = self.agent.robot
+        arm = getattr(self.agent, "arm_joint_names", None)
+        self._arm_idx = torch.tensor([robot.active_joints_map[n].active_index[0] for n in arm], device=self.device).long()
+        self._finger_idx = torch.tensor(
+            [robot.active_joints_map[n].active_index[0] for n in self.agent.gripper_joint_names], device=self.device
+        ).long()
+        self._ik = Kinematics(str(FULL_URDF), "panda_hand_tcp", robot, self._arm_idx)
+        self.ft = WristFTSensor(robot, self.ft_link, self.ft_history, self.device)
+
+    # ------------------------------------------------------------------ episodes
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        with torch.device(self.device):
+            b = len(env_idx)
+            rng = self._batched_episode_rng[env_idx]
+            # Socket on the floor: small xy and yaw jitter.
+            socket_xy = torch.as_tensor(rng.uniform(-self.socket_xy_range, self.socket_xy_range, size=(2,)), dtype=torch.float32)
+            socket_yaw = torch.as_tensor(rng.uniform(-self.socket_yaw_range, self.socket_yaw_range), dtype=torch.float32)
+            p = torch.zeros(b, 3)
+            p[:, :2] = socket_xy + torch.tensor(self.socket_center)
+            self.socket.set_pose(Pose.create_from_pq(p, _yaw_quat(socket_yaw)))
+            socket_pose = Pose.create_from_pq(p, _yaw_quat(socket_yaw))
+            top = socket_pose * Pose.create_from_pq(torch.tensor([[0, 0, self.socket_height]]).repeat(b, 1))
+
+            # Part tip in the start region: above the opening with an xy offset and a yaw error.
+            off = torch.zeros(b, 3)
+            off[:, :2] = torch.as_tensor(rng.uniform(-self.start_xy_range, self.start_xy_range, size=(2,)), dtype=torch.float32)
+            off[:, 2] = torch.as_tensor(rng.uniform(*self.start_height_range), dtype=torch.float32)
+            part_yaw = torch.as_tensor(rng.uniform(-self.start_yaw_range, self.start_yaw_range), dtype=torch.float32)
+            part_pose = Pose.create_from_pq(top.p + off, _yaw_quat(socket_yaw + part_yaw))
+            tcp_target = part_pose * Pose.create(sapien.Pose(p=[0, 0, self.part_length_below_tcp], q=_FLIP_X))
+            qpos = self._solve_ik(tcp_target, env_idx)
+            self.agent.robot.set_qpos(qpos)
+            self.agent.robot.set_qvel(torch.zeros_like(qpos))
+            self.part.set_pose(part_pose)
+            self.part.set_linear_velocity(torch.zeros(b, 3))
+            self.part.set_angular_velocity(torch.zeros(b, 3))
+
+            if self.randomize_colors:
+                # Reset-time only (not a hot path): one material per sub-scene.
+                colors = rng.uniform(0.05, 0.95, size=(6,))
+                for k, i in enumerate(env_idx.tolist()):
+                    self._part_materials[i].base_color = [*colors[k, :3], 1.0]
+                    self._socket_materials[i].base_color = [*colors[k, 3:], 1.0]
+            self.ft.reset(env_idx)
+
+    def _solve_ik(self, tcp_target: Pose, env_idx: torch.Tensor) -> torch.Tensor:
+        """Full robot qpos ``[b, dof]`` that puts the TCP at ``tcp_target`` (robot base = world)."""
+        robot = self.agent.robot
+        rest = torch.as_tensor(self.agent.keyframes["rest"].qpos, dtype=torch.float32, device=self.device)
+        q = rest.repeat(len(env_idx), 1)
+        q[:, self._finger_idx] = self.grip_half_width
+        if self._ik.use_gpu_ik:
+            # One damped least-squares step per call: iterate to convergence.
+            for _ in range(30):
+                q[:, self._arm_idx] = self._ik.compute_ik(tcp_target, q)
+        else:
+            sol = self._ik.compute_ik(tcp_target, q)
+            if sol is None:
+                raise RuntimeError(f"IK failed for start pose {tcp_target.raw_pose.tolist()}; shrink the start region")
+            q[:, self._arm_idx] = sol.to(q.dtype)
+        return q
+
+    # ------------------------------------------------------------------ sensing
+    def _after_simulation_step(self):
+        self.ft.update()
+
+    def _get_obs_extra(self, info: dict):
+        obs = dict(tcp_pose=self.agent.tcp.pose.raw_pose, ft=self.ft.buffer.clone())
+        if self.obs_mode_struct.use_state:
+            obs.update(
+                part_pose=self.part.pose.raw_pose,
+                socket_pose=self.socket.pose.raw_pose,
+                tip_in_socket=info["tip_in_socket"],
+            )
+        return obs
+
+    # ------------------------------------------------------------------ state
+    def get_state_dict(self):
+        """Sim state plus controller state, the F/T history and drive targets (to replay a step)."""
+        state = super().get_state_dict()
+        state["task"] = dict(
+            ft_history=self.ft.get_state(),
+            drive_targets=self.agent.robot.get_drive_targets().clone(),
+        )
+        return state
+
+    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
+        """Restore a ``get_state_dict()`` state, including the controller and the F/T history."""
+        super().set_state_dict(state, env_idx)
+        if "controller" in state:
+            self.agent.set_controller_state(state["controller"])
+        task = state.get("task", {})
+        if "ft_history" in task:
+            self.ft.set_state(task["ft_history"], env_idx)
+        if "drive_targets" in task:
+            targets = torch.as_tensor(task["drive_targets"], device=self.device)
+            if env_idx is not None:
+                current = self.agent.robot.get_drive_targets().clone()
+                current[env_idx] = targets[env_idx]
+                targets = current
+            self.agent.robot.set_joint_drive_targets(targets, self.agent.robot.active_joints)
+
+    def set_state(self, state, env_idx: torch.Tensor = None):
+        """Restore a flat ``get_state()`` vector, task keys included (ManiSkill's drops them)."""
+        template = self.get_state_dict()
+        state = torch.as_tensor(state, device=self.device)
+        if state.ndim == 1:
+            state = state[None]
+        self.set_state_dict(_unflatten_like(template, state), env_idx)
+
+    # ------------------------------------------------------------------ task
+    def tip_pose_in_socket(self) -> Pose:
+        """Pose of the part frame (tip) in the socket frame (top of the opening)."""
+        top = self.socket.pose * Pose.create_from_pq(
+            torch.tensor([[0, 0, self.socket_height]], device=self.device).repeat(self.num_envs, 1)
+        )
+        return top.inv() * self.part.pose
+
+    def in_start_region(self) -> torch.Tensor:
+        """Bool ``[num_envs]``: the part tip is more than ``start_region_height`` above the socket."""
+        return self.tip_pose_in_socket().p[:, 2] > self.start_region_height
+
+    def _orientation_errors(self, rel: Pose):
+        rot = quaternion_to_matrix(rel.q)
+        tilt = torch.arccos(rot[:, 2, 2].clamp(-1, 1))
+        yaw = torch.atan2(rot[:, 1, 0], rot[:, 0, 0])
+        if self.yaw_symmetry:
+            period = 2 * np.pi / self.yaw_symmetry
+            yaw = torch.remainder(yaw + period / 2, period) - period / 2
+        else:
+            yaw = torch.zeros_like(yaw)
+        return tilt, yaw.abs()
+
+    def evaluate(self):
+        rel = self.tip_pose_in_socket()
+        depth = -rel.p[:, 2]
+        radial = torch.linalg.norm(rel.p[:, :2], dim=1)
+        tilt, yaw_err = self._orientation_errors(rel)
+        in_bore = radial <= self.part_radial_tolerance
+        aligned = in_bore & (yaw_err <= self.max_yaw_error) & (tilt <= np.deg2rad(10))
+        success = aligned & (depth >= self.success_depth_fraction * self.hole_depth)
+        return dict(
+            success=success,
+            insertion_depth=depth,
+            depth_fraction=(depth / self.hole_depth).clamp(0, 1),
+            radial_offset=radial,
+            tilt_error=tilt,
+            yaw_error=yaw_err,
+            is_aligned=aligned,
+            tip_in_socket=rel.p,
+            in_start_region=rel.p[:, 2] > self.start_region_height,
+        )
+
+    # ------------------------------------------------------------------ rewards
+    def get_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        return getattr(self, self.REWARD_FUNCTIONS[self.reward_mode])(obs=obs, action=action, info=info)
+
+    def _zero_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        return torch.zeros(self.num_envs, device=self.device)
+
+    def compute_sparse_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        """1 on success, else 0."""
+        return info["success"].float()
+
+    def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        """Staged: reach above the opening (1), align axis and yaw (1), insert (2), success (6)."""
+        height = info["tip_in_socket"][:, 2]
+        radial = info["radial_offset"]
+        # Descending below the pre-insertion height is not penalised by the reach stage.
+        reach_dist = torch.sqrt(radial**2 + (height - 0.01).clamp(min=0) ** 2)
+        reward = 1 - torch.tanh(5 * reach_dist)
+        align = 0.5 * (1 - torch.tanh(200 * radial)) + 0.25 * (1 - torch.tanh(5 * info["tilt_error"]))
+        align = align + 0.25 * (1 - torch.tanh(5 * info["yaw_error"]))
+        reward = reward + align
+        reward = reward + 2 * info["is_aligned"].float() * info["depth_fraction"]
+        reward[info["success"]] = 6.0
+        return reward
+
+    def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        """``dense`` scaled to [0, 1]."""
+        return self.compute_dense_reward(obs=obs, action=action, info=info) / 6.0
+
+
+def _unflatten_like(template: dict, flat: torch.Tensor) -> dict:
+    """Split a flat state ``[B, D]`` into a dict shaped like ``template`` (ManiSkill's key order)."""
+    out, start = {}, 0
+
+    def walk(t: dict, o: dict):
+        nonlocal start
+        for key, value in t.items():
+            if isinstance(value, dict):
+                o[key] = {}
+                walk(value, o[key])
+                continue
+            value = torch.as_tensor(value)
+            width = 1 if value.ndim == 1 else value.shape[-1]
+            o[key] = flat[:, start : start + width]
+            if value.ndim == 1:
+                o[key] = o[key][:, 0]
+            start += width
+
+    walk(template, out)
+    if start != flat.shape[1]:
+        raise ValueError(
+            f"flat state has {flat.shape[1]} values but this env's state has {start}; "
+            "it was made by another task or configuration. Prefer env.get_state_dict()."
+        )
+    return out

@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Fresh-machine set-up for drem-maniskill; `make demo` and `make test` run it
+# first, so it must be cheap when nothing changed.
+#
+#   1. a virtualenv at .venv (created with the system's python3, reused after)
+#   2. `pip install -e ".[test]"` into it -- skipped while pyproject.toml is
+#      unchanged since the last successful install (sha256 kept in a stamp)
+#   3. a Vulkan device for SAPIEN (scripts/ensure_vulkan.sh)
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+
+VENV="$ROOT/.venv"
+PY="$VENV/bin/python"
+STAMP="$VENV/.drem-installed"
+
+say() { echo "[setup] $*"; }
+
+# 1. venv.  A venv whose interpreter no longer starts (e.g. the system Python
+#    it was made from was replaced) is rebuilt rather than patched.
+if [ -x "$PY" ] && "$PY" -c "" 2>/dev/null; then
+    say "reusing virtualenv $VENV"
+else
+    if [ -e "$VENV" ]; then
+        say "virtualenv $VENV is broken; recreating it"
+        rm -rf "$VENV"
+    fi
+    command -v python3 >/dev/null ||
+        { echo "[setup] ERROR: python3 not found; install Python >= 3.9 (Debian: apt-get install python3 python3-venv)" >&2; exit 1; }
+    say "creating virtualenv $VENV with $(python3 --version)"
+    python3 -m venv "$VENV" ||
+        { echo "[setup] ERROR: 'python3 -m venv' failed; on Debian/Ubuntu: apt-get install python3-venv" >&2; exit 1; }
+fi
+
+# 2. The package, editable, with test extras.  The stamp holds the sha256 of
+#    pyproject.toml and is written only after pip succeeded, so an
+#    interrupted install is retried next time.  We also check that the
+#    distribution is really there, in case someone pip-uninstalled it.
+WANT="$(sha256sum pyproject.toml | cut -d' ' -f1)"
+HAVE="$(cat "$STAMP" 2>/dev/null || true)"
+if [ "$WANT" = "$HAVE" ] && [ -x "$VENV/bin/drem-maniskill" ] &&
+    "$PY" -c 'import importlib.metadata as m; m.version("drem-maniskill")' 2>/dev/null; then
+    say "package already installed and pyproject.toml unchanged; skipping pip install"
+else
+    say "pip install -e \".[test]\" (first time or pyproject.toml changed; takes a few minutes) ..."
+    rm -f "$STAMP"
+    "$PY" -m pip install -e ".[test]"
+    echo "$WANT" >"$STAMP"
+fi
+
+# 3. Vulkan for SAPIEN.
+bash "$ROOT/scripts/ensure_vulkan.sh"
+say "done"
