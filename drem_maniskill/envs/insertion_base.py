@@ -90,6 +90,7 @@ class InsertionEnv(BaseEnv):
     success_depth_fraction = 0.8
 
     ft_link = "panda_hand"
+    fixed_camera_scale = 1.0  # distance of the fixed camera, relative to the peg task's
 
     def __init__(
         self,
@@ -130,14 +131,17 @@ class InsertionEnv(BaseEnv):
             **kwargs,
         )
 
-    def _check_clearance(self, clearance: float) -> float:
-        clearance = float(clearance)
-        if not np.isfinite(clearance) or clearance <= 0 or clearance > 0.02:
+    def _check_clearance(self, clearance) -> float:
+        try:
+            value = float(clearance)
+        except (TypeError, ValueError):
+            value = float("nan")
+        if not np.isfinite(value) or value <= 0 or value > 0.02:
             raise ValueError(
                 f"clearance must be a positive diametral gap in metres below 0.02 "
                 f"(the paper uses {self.default_clearance}), got {clearance!r}"
             )
-        return clearance
+        return value
 
     # ------------------------------------------------------------------ configuration
     @property
@@ -152,19 +156,16 @@ class InsertionEnv(BaseEnv):
 
     @property
     def _default_sensor_configs(self):
-        target = [self.socket_center[0], self.socket_center[1], self.socket_height + 0.04]
-        eye = [target[0] + 0.22, target[1] - 0.22, target[2] + 0.2]
-        fixed = CameraConfig("fixed_camera", sapien_utils.look_at(eye, target), 128, 128, np.deg2rad(45), 0.01, 10)
+        # From the side opposite the robot, so the arm does not hide the part or the socket.
+        target = [self.socket_center[0], self.socket_center[1], self.socket_height + 0.03]
+        k = self.fixed_camera_scale
+        eye = [target[0] + 0.17 * k, target[1] - 0.13 * k, target[2] + 0.09 * k]
+        fixed = CameraConfig("fixed_camera", sapien_utils.look_at(eye, target), 128, 128, np.deg2rad(40), 0.01, 10)
         # In the hand frame z points to the fingers: look past the fingertips at the part tip.
-        wrist_pose = sapien_utils.look_at([0.07, 0.0, 0.02], [0.0, 0.0, _TCP_IN_HAND + self.part_length_below_tcp + 0.05], up=[1, 0, 0])
+        tip = _TCP_IN_HAND + self.part_length_below_tcp
+        wrist_pose = sapien_utils.look_at([0.055, 0.0, 0.05], [0.0, 0.0, tip + 0.04], up=[1, 0, 0])
         wrist = CameraConfig(
-            "wrist_camera",
-            wrist_pose,
-            128,
-            128,
-            np.deg2rad(70),
-            0.01,
-            10,
+            "wrist_camera", wrist_pose, 128, 128, np.deg2rad(60), 0.01, 10,
             mount=self.agent.robot.links_map["panda_hand"],
         )
         return [fixed, wrist]
@@ -195,7 +196,7 @@ class InsertionEnv(BaseEnv):
             builder.add_plane_collision(sapien.Pose(q=[0.7071068, 0, -0.7071068, 0]))
             builder.add_box_visual(
                 sapien.Pose([0.3, 0, -0.005]), [1.0, 1.0, 0.005],
-                material=sapien.render.RenderMaterial(base_color=[0.55, 0.57, 0.6, 1]),
+                material=sapien.render.RenderMaterial(base_color=[0.22, 0.24, 0.27, 1]),
             )
             builder.initial_pose = sapien.Pose()
             self.ground = builder.build_static(name="ground")

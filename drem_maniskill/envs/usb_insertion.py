@@ -61,6 +61,7 @@ class USBInsertionEnv(InsertionEnv):
     part_radial_tolerance = 0.0008
     yaw_symmetry = 1
     max_yaw_error = np.deg2rad(10)
+    fixed_camera_scale = 0.6
 
     def _build_part(self, material):
         builder = self.scene.create_actor_builder()

@@ -1,0 +1,83 @@
+"""Record scripted-expert demonstrations in ManiSkill's trajectory format (RecordEpisode).
+
+The files are what ManiSkill's ``RecordEpisode`` writes: ``<name>.h5`` (per episode
+``traj_<i>`` with ``obs``, ``actions``, ``env_states``, ``success``, ...) and ``<name>.json``
+(env id, env kwargs, episode seeds). A user's own demo in the same format can replace it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Optional, Sequence
+
+import gymnasium as gym
+from tqdm import tqdm
+
+from mani_skill.utils.wrappers.record import RecordEpisode
+
+from drem_maniskill.scripted import get_policy
+
+
+@dataclass
+class RecordResult:
+    """What ``record_expert`` wrote and how the episodes went."""
+
+    h5_path: str
+    json_path: str
+    seeds: list = field(default_factory=list)
+    success: list = field(default_factory=list)
+    lengths: list = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        """Fraction of recorded episodes that ended in success."""
+        return sum(self.success) / max(len(self.success), 1)
+
+
+def record_expert(
+    env_id: str,
+    out_dir: str,
+    seeds: Sequence[int] = (0,),
+    obs_mode: str = "rgb",
+    name: str = "expert",
+    policy: str = "expert",
+    save_video: bool = False,
+    max_steps: Optional[int] = None,
+    env_kwargs: Optional[dict] = None,
+) -> RecordResult:
+    """Roll out a scripted policy on ``seeds`` and save the episodes with ``RecordEpisode``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    env = gym.make(env_id, obs_mode=obs_mode, render_mode="rgb_array" if save_video else None, **(env_kwargs or {}))
+    # info_on_video crashes with numpy 2.4 in ManiSkill 3.0.1; keep it off.
+    env = RecordEpisode(
+        env, str(out), trajectory_name=name, save_video=save_video, info_on_video=False,
+        save_on_reset=False, record_env_state=True, video_fps=5,
+    )
+    pi = get_policy(policy, env, seed=int(seeds[0]) if len(seeds) else 0)
+    horizon = max_steps or env.unwrapped.spec.max_episode_steps or 50
+    result = RecordResult(h5_path=str(out / f"{name}.h5"), json_path=str(out / f"{name}.json"))
+    try:
+        for seed in tqdm(list(seeds), desc=f"record {policy} on {env_id}", unit="episode", disable=None):
+            obs, _ = env.reset(seed=int(seed))
+            for t in range(horizon):
+                obs, _, terminated, truncated, info = env.step(pi(obs))
+                if bool(terminated.any()) or bool(truncated.any()):
+                    break
+            env.flush_trajectory()
+            if save_video:
+                env.flush_video()
+            result.seeds.append(int(seed))
+            result.success.append(bool(info["success"].any()))
+            result.lengths.append(t + 1)
+    finally:
+        env.close()
+    summary = {k: v for k, v in asdict(result).items()}
+    summary["success_rate"] = result.success_rate
+    tmp = out / f".{name}.summary.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=2))
+    os.replace(tmp, out / f"{name}.summary.json")
+    return result
