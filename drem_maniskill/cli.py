@@ -27,6 +27,13 @@ def _cmd_record_expert(args) -> None:
                       "lengths": result.lengths}, indent=2))
 
 
+def _cmd_scripted_success(args) -> None:
+    from drem_maniskill.scripted import success_rate
+
+    result = success_rate(args.task, args.policy, seeds=range(args.seed, args.seed + args.episodes))
+    print(json.dumps(result, indent=2))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``drem-maniskill`` command."""
     from drem_maniskill.demo import TASKS
@@ -50,6 +57,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="expert", help="file name stem (default: %(default)s)")
     p.add_argument("--video", action="store_true", help="also write an mp4 per episode")
     p.set_defaults(func=_cmd_record_expert)
+
+    p = sub.add_parser("scripted-success", help="success rate of a scripted policy over many seeds")
+    p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
+    p.add_argument("--policy", default="expert", help="expert, direct_success, align_success, search_fail, random")
+    p.add_argument("--episodes", type=int, default=100, help="number of seeds (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="first seed (default: %(default)s)")
+    p.set_defaults(func=_cmd_scripted_success)
     return parser
 
 

@@ -31,7 +31,7 @@ POLICY_NAMES = ("expert", "direct_success", "align_success", "search_fail", "ran
 
 # Contact is declared when the wrist feels this much force along the approach axis.
 CONTACT_FORCE = 3.0
-PRESS_DEPTH = 0.003  # commanded below the surface when pressing: a few newtons through the arm's PD
+PRESS_DEPTH = 0.002  # commanded below the surface when pressing: a few newtons through the arm's PD
 
 
 def _yaw_error(env) -> torch.Tensor:
@@ -161,7 +161,7 @@ class AlignSuccessPolicy(ScriptedPolicy):
         target[approach, :2] = self.offset[approach]
         target[approach, 2] = -PRESS_DEPTH
         slide = self.phase == 1
-        target[slide, :2] = tip[slide, :2] - 0.003 * tip[slide, :2] / radial[slide, None].clamp(min=1e-6)
+        target[slide, :2] = tip[slide, :2] - 0.006 * tip[slide, :2] / radial[slide, None].clamp(min=1e-6)
         target[slide, 2] = -PRESS_DEPTH
         insert = self.phase == 2
         target[insert, 2] = tip[insert, 2] - 0.01
@@ -212,3 +212,26 @@ def get_policy(name: str, env, seed: int = 0) -> Callable:
     policy = _POLICIES[name](env, seed=seed)
     policy._on_reset(torch.ones(policy.n, dtype=torch.bool, device=policy.device))
     return policy
+
+
+def success_rate(env_id: str, name: str = "expert", seeds=range(100), env_kwargs=None) -> dict:
+    """Run a scripted policy once per seed; return the success rate and per-seed outcomes."""
+    import gymnasium as gym
+    from tqdm import tqdm
+
+    env = gym.make(env_id, obs_mode="state_dict", **(env_kwargs or {}))
+    policy = get_policy(name, env)
+    outcomes, lengths = [], []
+    try:
+        for seed in tqdm(list(seeds), desc=f"{name} on {env_id}", unit="episode", disable=None):
+            obs, _ = env.reset(seed=int(seed))
+            for t in range(env.spec.max_episode_steps or 50):
+                obs, _, terminated, truncated, info = env.step(policy(obs))
+                if bool(terminated.any()) or bool(truncated.any()):
+                    break
+            outcomes.append(bool(info["success"].item()))
+            lengths.append(t + 1)
+    finally:
+        env.close()
+    return dict(env_id=env_id, policy=name, episodes=len(outcomes), success_rate=sum(outcomes) / max(len(outcomes), 1),
+                mean_length=float(np.mean(lengths)), failed_seeds=[int(s) for s, ok in zip(seeds, outcomes) if not ok])

@@ -45,6 +45,13 @@ if [ "$WANT" = "$HAVE" ] && [ -x "$VENV/bin/drem-maniskill" ] &&
 else
     say "pip install -e \".[test]\" (first time or pyproject.toml changed; takes a few minutes) ..."
     rm -f "$STAMP"
+    # Everything here runs on the CPU. Where a CPU-only torch build is at hand (these
+    # machines keep torch 2.13.0+cpu locally), take it first so that pip does not pull
+    # gigabytes of CUDA wheels for the newest torch; elsewhere this falls through.
+    if ! "$PY" -c "import torch" 2>/dev/null; then
+        "$PY" -m pip install "torch==2.13.0" 2>/dev/null ||
+            say "torch 2.13.0 not available here; pip will choose a torch in pyproject's range"
+    fi
     "$PY" -m pip install -e ".[test]"
     echo "$WANT" >"$STAMP"
 fi

@@ -190,12 +190,12 @@ def test_state_round_trip_in_contact_restores_the_ft_history(task):
     torch.testing.assert_close(u.ft.buffer, state["task"]["ft_history"].reshape(1, 8, 6))
     second, *_ = env.step(action)
     third = _replay(env, state, action)
-    # Replays from a restored state agree with each other...
-    torch.testing.assert_close(second["extra"]["ft"], third["extra"]["ft"], atol=0.2, rtol=0)
-    # ...and with the original step up to PhysX's contact warm-start, which no state holds.
+    # In contact, PhysX's solver starts from contact impulses cached by whatever step ran
+    # before, which no state holds: replays agree to a few percent of the contact force.
     scale = first["extra"]["ft"].abs().max()
-    assert (first["extra"]["ft"] - second["extra"]["ft"]).abs().max() < 0.1 * scale
-    torch.testing.assert_close(first["extra"]["tcp_pose"], second["extra"]["tcp_pose"], atol=5e-4, rtol=0)
+    for replay in (second, third):
+        assert (first["extra"]["ft"] - replay["extra"]["ft"]).abs().max() < 0.1 * scale
+        torch.testing.assert_close(first["extra"]["tcp_pose"], replay["extra"]["tcp_pose"], atol=5e-4, rtol=0)
 
     # The flat state vector carries the task keys too.
     flat = u.get_state()

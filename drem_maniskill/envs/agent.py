@@ -17,9 +17,11 @@ from __future__ import annotations
 import re
 from copy import deepcopy
 from dataclasses import dataclass
+from typing import Callable, Optional
 from pathlib import Path
 
 import numpy as np
+import sapien
 from gymnasium import spaces
 
 from mani_skill import PACKAGE_ASSET_DIR
@@ -27,6 +29,8 @@ from mani_skill.agents.controllers import deepcopy_dict
 from mani_skill.agents.controllers.base_controller import BaseController, ControllerConfig
 from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots.panda.panda import Panda
+from mani_skill.utils import sapien_utils
+from mani_skill.utils.structs import Articulation
 
 from drem_maniskill._cache import cached_text_file
 
@@ -86,18 +90,67 @@ def lean_urdf_path() -> str:
     return cached_text_file("panda_lean", ".urdf", text)
 
 
+@dataclass
+class HeldPart:
+    """The part the hand holds: a rigid link fixed to ``panda_hand`` at ``pose_in_hand``."""
+
+    pose_in_hand: sapien.Pose
+    add_shapes: Callable  # add_shapes(link_builder, env_index): adds collision and visual shapes
+    name: str = "held_part"
+
+
 @register_agent()
 class PandaInsertion(Panda):
-    """Panda with arm-only control modes and a gripper that keeps holding the part."""
+    """Panda with arm-only control modes, holding the task's part as a link of its hand."""
 
     uid = "panda_insertion"
     urdf_path = str(FULL_URDF)
+    # Set by the env right before it loads the agent (ManiSkill builds agents from the class).
     render_style = "lean"
+    held_part: Optional[HeldPart] = None
 
     def _load_articulation(self, initial_pose=None):
-        # The render style is chosen per env; the env sets it on the agent class before loading.
+        # A rigid part must be part of the articulation: joints to separate actors yield under
+        # insertion forces (millimetres at 30-60 N in PhysX), a fixed link does not.
         self.urdf_path = lean_urdf_path() if type(self).render_style == "lean" else str(FULL_URDF)
-        super()._load_articulation(initial_pose)
+        part = type(self).held_part
+
+        def build(scene_idxs):
+            loader = self.scene.create_urdf_loader()
+            loader.name = f"{self.uid}-agent-{self._agent_idx}" if self._agent_idx is not None else self.uid
+            loader.fix_root_link = self.fix_root_link
+            loader.load_multiple_collisions_from_file = self.load_multiple_collisions
+            loader.disable_self_collisions = self.disable_self_collisions
+            if self.urdf_config is not None:
+                config = sapien_utils.parse_urdf_config(self.urdf_config)
+                sapien_utils.check_urdf_config(config)
+                sapien_utils.apply_urdf_config(loader, config)
+            builder = loader.parse(self.urdf_path)["articulation_builders"][0]
+            if part is not None:
+                hand = next(b for b in builder.link_builders if b.name == "panda_hand")
+                link = builder.create_link_builder(hand)
+                link.set_name(part.name)
+                link.set_joint_name(f"{part.name}_joint")
+                link.set_joint_properties("fixed", [], part.pose_in_hand, sapien.Pose())
+                part.add_shapes(link, None if scene_idxs is None else scene_idxs[0])
+            builder.initial_pose = initial_pose
+            if scene_idxs is not None:
+                builder.set_scene_idxs(scene_idxs)
+                builder.set_name(f"{self.uid}-agent-{self._agent_idx}-{scene_idxs}")
+            return builder.build()
+
+        if self.build_separate:
+            # One articulation per sub-scene, so each env has its own part materials to recolour.
+            arts = []
+            for i in range(self.scene.num_envs):
+                art = build([i])
+                self.scene.remove_from_state_dict_registry(art)
+                arts.append(art)
+            self.robot = Articulation.merge(arts, name=f"{self.uid}-agent-{self._agent_idx}", merge_links=True)
+            self.scene.add_to_state_dict_registry(self.robot)
+        else:
+            self.robot = build(None)
+        self.robot_link_names = [link.name for link in self.robot.get_links()]
 
     @property
     def _controller_configs(self):

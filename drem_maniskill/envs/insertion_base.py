@@ -1,14 +1,15 @@
 """Shared base of our contact-rich insertion tasks (PegInHole-v1, USBInsertion-v1).
 
-A Panda stands at the world origin and holds a part (welded to its hand) above a socket that
-lies on the floor in front of it. Frames:
+A Panda stands at the world origin and holds a part above a socket that lies on the floor in
+front of it. The part is a rigid link of the hand (added to the robot's articulation when it is
+loaded), so it cannot slip or drop. Frames:
 
 * the **socket frame** sits at the centre of the socket's opening on its top face, z up;
   the part goes in along -z;
 * the **part frame** sits at the centre of the part's tip, z up (away from the tip). When the
   part is fully aligned, its frame and the socket frame have the same orientation.
 
-Subclasses give the geometry (``_build_part``, ``_build_socket``, class constants) and, for a
+Subclasses give the geometry (``_add_part_shapes``, ``_add_socket_shapes``, class constants) and, for a
 keyed part, the orientation tolerance. Everything here is batched over ``num_envs``.
 """
 
@@ -30,15 +31,14 @@ from mani_skill.utils.geometry.rotation_conversions import (
     quaternion_to_matrix,
 )
 from mani_skill.utils.structs import Actor, Pose
-from mani_skill.utils.structs.drive import Drive
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
-from drem_maniskill.envs.agent import FULL_URDF, PandaInsertion
+from drem_maniskill.envs.agent import FULL_URDF, HeldPart, PandaInsertion
 from drem_maniskill.envs.ft_sensor import WristFTSensor
 
 RENDER_STYLES = ("lean", "full")
-# Group-2 collision bit shared by the robot and the held part: they never collide with each
-# other (the part is welded to the hand, so finger contact would only fight the weld).
+# Group-2 collision bit on every robot link, held part included: the fingers rest on the
+# part without contact forces between links of one rigid hand.
 _HELD_PART_BIT = 28
 
 # Hand-frame (z towards the fingers) pose of the TCP, from Panda's URDF.
@@ -57,7 +57,7 @@ def _yaw_quat(yaw: torch.Tensor) -> torch.Tensor:
 class InsertionEnv(BaseEnv):
     """Base class: a held part, a socket, two cameras and a wrist F/T sensor."""
 
-    SUPPORTED_ROBOTS = ["panda_insertion", "panda"]
+    SUPPORTED_ROBOTS = ["panda_insertion"]
     agent: PandaInsertion
 
     # One place to add a reward mode: name -> method computing a [num_envs] tensor.
@@ -178,8 +178,21 @@ class InsertionEnv(BaseEnv):
 
     # ------------------------------------------------------------------ scene
     def _load_agent(self, options: dict):
+        # The part is a link of the robot's hand; one material per env so colours can vary.
+        self._part_materials = [
+            sapien.render.RenderMaterial(base_color=[0.85, 0.45, 0.1, 1], roughness=0.5) for _ in range(self.num_envs)
+        ]
+        self.part_in_hand = sapien.Pose(p=[0, 0, _TCP_IN_HAND + self.part_length_below_tcp], q=_FLIP_X)
+
+        def add_part_shapes(link_builder, env_index):
+            self._add_part_shapes(link_builder, self._part_materials[env_index or 0])
+
         PandaInsertion.render_style = self.render_style
-        super()._load_agent(options, sapien.Pose())
+        PandaInsertion.held_part = HeldPart(self.part_in_hand, add_part_shapes)
+        try:
+            super()._load_agent(options, sapien.Pose(), build_separate=True)
+        finally:
+            PandaInsertion.held_part = None
 
     def _load_lighting(self, options: dict):
         shadow = self.render_style == "full" and self.enable_shadow
@@ -201,40 +214,22 @@ class InsertionEnv(BaseEnv):
             builder.initial_pose = sapien.Pose()
             self.ground = builder.build_static(name="ground")
 
-        # One actor per sub-scene so every env has its own render materials to recolour.
-        parts, sockets = [], []
-        self._part_materials, self._socket_materials = [], []
+        # One socket per sub-scene so every env has its own render material to recolour.
+        sockets = []
+        self._socket_materials = []
         for i in range(self.num_envs):
-            part_mat = sapien.render.RenderMaterial(base_color=[0.85, 0.45, 0.1, 1], roughness=0.5)
             socket_mat = sapien.render.RenderMaterial(base_color=[0.2, 0.35, 0.75, 1], roughness=0.6)
-            builder = self._build_part(part_mat)
-            builder.set_scene_idxs([i])
-            builder.initial_pose = sapien.Pose(p=[0.3, 0, 0.5])
-            parts.append(builder.build(name=f"part-{i}"))
-            builder = self._build_socket(socket_mat)
+            builder = self.scene.create_actor_builder()
+            self._add_socket_shapes(builder, socket_mat)
             builder.set_scene_idxs([i])
             builder.initial_pose = sapien.Pose(p=[*self.socket_center, 0])
             sockets.append(builder.build_kinematic(name=f"socket-{i}"))
-            self._part_materials.append(part_mat)
             self._socket_materials.append(socket_mat)
-        self.part = Actor.merge(parts, name="part")
         self.socket = Actor.merge(sockets, name="socket")
-        for body in self.part._bodies:
-            body.disable_gravity = True  # held: the wrist should read ~0 in free space
-
-        # The robot holds the part with a locked joint from its hand to the part frame.
-        self.part.set_collision_group_bit(2, _HELD_PART_BIT, 1)
+        self.part = self.agent.robot.links_map["held_part"]
+        # The fingers rest on the part: contacts between links of one hand would only fight.
         for link in self.agent.robot.links:
             link.set_collision_group_bit(2, _HELD_PART_BIT, 1)
-        hand = self.agent.robot.links_map["panda_hand"]
-        self.part_in_hand = sapien.Pose(p=[0, 0, _TCP_IN_HAND + self.part_length_below_tcp], q=_FLIP_X)
-        self.grip = Drive.create_from_actors_or_links(self.scene, hand, self.part_in_hand, self.part, sapien.Pose())
-        for drive in self.grip._objs:
-            for axis in ("x", "y", "z"):
-                getattr(drive, f"set_limit_{axis}")(0, 0)
-            # PhysX ignores zero-angle swing limits; a stiff slerp drive holds the orientation.
-            drive.set_drive_property_slerp(1e3, 1.0)
-            drive.set_drive_target(sapien.Pose())
 
     def _after_reconfigure(self, options: dict):
         super()._after_reconfigure(options)
@@ -271,9 +266,6 @@ class InsertionEnv(BaseEnv):
             qpos = self._solve_ik(tcp_target, env_idx)
             self.agent.robot.set_qpos(qpos)
             self.agent.robot.set_qvel(torch.zeros_like(qpos))
-            self.part.set_pose(part_pose)
-            self.part.set_linear_velocity(torch.zeros(b, 3))
-            self.part.set_angular_velocity(torch.zeros(b, 3))
 
             if self.randomize_colors:
                 # Reset-time only (not a hot path): one material per sub-scene.

@@ -56,22 +56,18 @@ class PegInHoleEnv(InsertionEnv):
     part_radial_tolerance = 0.0015
     yaw_symmetry = 0
 
-    def _build_part(self, material):
-        builder = self.scene.create_actor_builder()
+    def _add_part_shapes(self, builder, material):
         builder.add_convex_collision_from_file(prism_obj(self.peg_radius, self.peg_length, self.segments))
         # Cylinder visuals are along x; turn them to the part's z axis.
         builder.add_cylinder_visual(
             sapien.Pose([0, 0, self.peg_length / 2], [np.sqrt(0.5), 0, -np.sqrt(0.5), 0]),
             self.peg_radius, self.peg_length / 2, material=material,
         )
-        return builder
 
-    def _build_socket(self, material):
-        builder = self.scene.create_actor_builder()
+    def _add_socket_shapes(self, builder, material):
         hole_radius = self.peg_radius + self.clearance / 2
         outer = hole_radius + self.wall
         base = [outer, outer, self.base_thickness / 2]
         builder.add_box_collision(sapien.Pose([0, 0, self.base_thickness / 2]), base)
         builder.add_box_visual(sapien.Pose([0, 0, self.base_thickness / 2]), base, material=material)
         add_round_bore(builder, hole_radius, self.hole_depth, self.wall, self.segments, self.base_thickness, material)
-        return builder

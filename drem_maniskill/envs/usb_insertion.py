@@ -63,8 +63,7 @@ class USBInsertionEnv(InsertionEnv):
     max_yaw_error = np.deg2rad(10)
     fixed_camera_scale = 0.6
 
-    def _build_part(self, material):
-        builder = self.scene.create_actor_builder()
+    def _add_part_shapes(self, builder, material):
         metal = sapien.render.RenderMaterial(base_color=[0.75, 0.75, 0.78, 1], metallic=0.8, roughness=0.3)
         insulator = sapien.render.RenderMaterial(base_color=[0.1, 0.1, 0.1, 1])
         w, h, t, length = self.shell[0] / 2, self.shell[1] / 2, self.wall / 2, self.shell_length / 2
@@ -82,10 +81,8 @@ class USBInsertionEnv(InsertionEnv):
         for p, half, mat in boxes:
             builder.add_box_collision(sapien.Pose(p), half)
             builder.add_box_visual(sapien.Pose(p), half, material=mat)
-        return builder
 
-    def _build_socket(self, material):
-        builder = self.scene.create_actor_builder()
+    def _add_socket_shapes(self, builder, material):
         ow = (self.shell[0] + self.clearance) / 2  # half opening
         oh = (self.shell[1] + self.clearance) / 2
         hw = self.housing_wall
@@ -106,4 +103,3 @@ class USBInsertionEnv(InsertionEnv):
         for p, half, mat in boxes:
             builder.add_box_collision(sapien.Pose(p), half)
             builder.add_box_visual(sapien.Pose(p), half, material=mat)
-        return builder
