@@ -66,6 +66,7 @@ class InsertionEnv(BaseEnv):
         "dense": "compute_dense_reward",
         "normalized_dense": "compute_normalized_dense_reward",
         "none": "_zero_reward",
+        "drem": "compute_drem_reward",
     }
     SUPPORTED_REWARD_MODES = tuple(REWARD_FUNCTIONS)
 
@@ -90,6 +91,7 @@ class InsertionEnv(BaseEnv):
     success_depth_fraction = 0.8
 
     ft_link = "panda_hand"
+    env_id: str = ""  # the registered id, for checking reward checkpoints
     fixed_camera_scale = 1.0  # distance of the fixed camera, relative to the peg task's
 
     def __init__(
@@ -103,6 +105,7 @@ class InsertionEnv(BaseEnv):
         ft_history: int = 8,
         reconfiguration_freq: Optional[int] = None,
         reward_mode: Optional[str] = None,
+        drem_checkpoint: Optional[str] = None,
         **kwargs,
     ):
         self.clearance = self._check_clearance(self.default_clearance if clearance is None else clearance)
@@ -119,6 +122,8 @@ class InsertionEnv(BaseEnv):
         self.randomize_colors = bool(randomize_colors)
         self.render_style = render_style
         self.ft_history = int(ft_history)
+        self.drem_checkpoint = drem_checkpoint
+        self._drem = None
         # Rebuilding the scene costs 160-300 ms on this CPU; colours and poses change without it.
         if reconfiguration_freq is None:
             reconfiguration_freq = 0
@@ -130,6 +135,12 @@ class InsertionEnv(BaseEnv):
             reward_mode=reward_mode,
             **kwargs,
         )
+        if self.reward_mode == "drem":
+            # Fail at construction, not at the first step, when the checkpoint does not fit.
+            from drem_maniskill.drem.reward import DREMReward, resolve_checkpoint
+
+            path = resolve_checkpoint(self.env_id, drem_checkpoint)
+            self._drem = DREMReward.from_checkpoint(str(path), env=self)
 
     def _check_clearance(self, clearance) -> float:
         try:
@@ -389,6 +400,28 @@ class InsertionEnv(BaseEnv):
 
     def _zero_reward(self, obs: Any, action: torch.Tensor, info: dict):
         return torch.zeros(self.num_envs, device=self.device)
+
+    def compute_drem_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        """DREM task progress ``R(s)`` from the cameras and the F/T history (Eq. 2)."""
+        images = {}
+        sensor_data = obs.get("sensor_data", {}) if isinstance(obs, dict) else {}
+        need = self._drem.camera_uids
+        if all("rgb" in sensor_data.get(uid, {}) for uid in need):
+            images = {uid: sensor_data[uid]["rgb"] for uid in need}  # the obs already has them
+        else:
+            # Obs modes without rgb (state, none, depth-only): render the cameras once here.
+            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
+            for uid in need:
+                self._sensors[uid].capture()
+            images = {
+                uid: self._sensors[uid].get_obs(rgb=True, depth=False, position=False, segmentation=False)["rgb"]
+                for uid in need
+            }
+        from drem_maniskill.drem.model import CAMERA_OF
+
+        batch = {key: images[uid] for key, uid in CAMERA_OF.items() if uid in images}
+        batch["ft"] = self.ft.buffer
+        return self._drem(batch)
 
     def compute_sparse_reward(self, obs: Any, action: torch.Tensor, info: dict):
         """1 on success, else 0."""

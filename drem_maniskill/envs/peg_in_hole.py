@@ -43,6 +43,7 @@ class PegInHoleEnv(InsertionEnv):
     insert, success = 6), ``normalized_dense`` (``dense`` / 6), ``none``.
     """
 
+    env_id = "PegInHole-v1"
     default_clearance = 0.0024
     peg_radius = 0.010
     peg_length = 0.100

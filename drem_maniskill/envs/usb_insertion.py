@@ -43,6 +43,7 @@ class USBInsertionEnv(InsertionEnv):
     success = 6), ``normalized_dense`` (``dense`` / 6), ``none``.
     """
 
+    env_id = "USBInsertion-v1"
     default_clearance = 0.0010
     shell = (0.012, 0.0045)  # width (x), height (y)
     shell_length = 0.012

@@ -1,0 +1,211 @@
+"""The multimodal encoder-decoder of DREM (Section III-B of the paper).
+
+Encoder: per 128x128x3 image a 6-layer CNN and a fully connected layer to 64-d; the 8x6 F/T
+history through a 4-layer causal 1-d convolution to 32-d; the concatenation through a 2-layer
+MLP to the 128-d latent ``h(s)``. Decoder: a 7-layer transposed CNN back to each image and a
+3-layer 1-d transposed convolution back to the 8x6 F/T history. Which inputs are used is a
+config (``modalities``), so the paper's "Image learned" baseline is this model without F/T.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+MODALITIES = ("fixed", "wrist", "ft")
+CAMERA_OF = {"fixed": "fixed_camera", "wrist": "wrist_camera"}
+
+
+@dataclass
+class ModelConfig:
+    """Architecture; defaults are the paper's."""
+
+    modalities: tuple = ("fixed", "wrist", "ft")
+    image_size: int = 128
+    ft_history: int = 8
+    image_dim: int = 64
+    ft_dim: int = 32
+    latent_dim: int = 128
+    channels: tuple = (16, 32, 32, 64, 64, 128)
+
+    def __post_init__(self):
+        self.modalities = tuple(self.modalities)
+        self.channels = tuple(self.channels)
+        unknown = [m for m in self.modalities if m not in MODALITIES]
+        if unknown or not self.modalities:
+            raise ValueError(f"modalities must be a non-empty subset of {MODALITIES}, got {self.modalities}")
+        if self.image_size % 64:
+            raise ValueError(f"image_size must be a multiple of 64 (6 stride-2 layers), got {self.image_size}")
+
+    @property
+    def cameras(self) -> tuple:
+        """Image modalities in a fixed order."""
+        return tuple(m for m in self.modalities if m != "ft")
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        return asdict(self)
+
+
+class ImageEncoder(nn.Module):
+    """6 stride-2 conv layers (128 -> 2 pixels) and a linear layer to ``out_dim``."""
+
+    def __init__(self, channels, out_dim, image_size):
+        super().__init__()
+        layers, c_in = [], 3
+        for c in channels:
+            layers += [nn.Conv2d(c_in, c, 4, stride=2, padding=1), nn.LeakyReLU(0.1)]
+            c_in = c
+        self.conv = nn.Sequential(*layers)
+        self.side = image_size // 2 ** len(channels)
+        self.fc = nn.Linear(c_in * self.side**2, out_dim)
+
+    def forward(self, x):
+        """``[B, 3, H, W]`` floats in [0, 1] -> ``[B, out_dim]``."""
+        return self.fc(self.conv(x).flatten(1))
+
+
+class ImageDecoder(nn.Module):
+    """Linear layer to a 2x2 map, 6 stride-2 transposed convs and a last 1-stride one: 7 layers."""
+
+    def __init__(self, channels, in_dim, image_size):
+        super().__init__()
+        rev = tuple(reversed(channels))
+        self.side = image_size // 2 ** len(channels)
+        self.fc = nn.Linear(in_dim, rev[0] * self.side**2)
+        layers = []
+        for c_in, c_out in zip(rev, rev[1:] + (rev[-1],)):
+            layers += [nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1), nn.LeakyReLU(0.1)]
+        layers.append(nn.ConvTranspose2d(rev[-1], 3, 3, stride=1, padding=1))
+        self.deconv = nn.Sequential(*layers)
+        self.c0 = rev[0]
+
+    def forward(self, h):
+        """``[B, in_dim]`` -> image logits ``[B, 3, H, W]``."""
+        return self.deconv(self.fc(h).view(h.shape[0], self.c0, self.side, self.side))
+
+
+class CausalConv1d(nn.Conv1d):
+    """1-d convolution that only looks at the past (left padding)."""
+
+    def __init__(self, c_in, c_out, kernel_size, dilation=1):
+        super().__init__(c_in, c_out, kernel_size, dilation=dilation)
+        self.left = (kernel_size - 1) * dilation
+
+    def forward(self, x):
+        """``[B, C, T]`` -> ``[B, C', T]``."""
+        return super().forward(F.pad(x, (self.left, 0)))
+
+
+class FTEncoder(nn.Module):
+    """4 causal dilated conv layers over the F/T history, then the newest step -> ``out_dim``."""
+
+    def __init__(self, out_dim, history):
+        super().__init__()
+        self.net = nn.Sequential(
+            CausalConv1d(6, 16, 2, 1), nn.LeakyReLU(0.1),
+            CausalConv1d(16, 32, 2, 2), nn.LeakyReLU(0.1),
+            CausalConv1d(32, 64, 2, 4), nn.LeakyReLU(0.1),
+            CausalConv1d(64, out_dim, 2, 8),
+        )
+
+    def forward(self, ft):
+        """``[B, T, 6]`` (scaled) -> ``[B, out_dim]``: the receptive field of the last step covers all 8."""
+        return self.net(ft.transpose(1, 2))[:, :, -1]
+
+
+class FTDecoder(nn.Module):
+    """3 transposed 1-d conv layers: latent -> ``[B, history, 6]``."""
+
+    def __init__(self, in_dim, history):
+        super().__init__()
+        self.start = history // 4
+        self.fc = nn.Linear(in_dim, 64 * self.start)
+        self.net = nn.Sequential(
+            nn.ConvTranspose1d(64, 32, 4, stride=2, padding=1), nn.LeakyReLU(0.1),
+            nn.ConvTranspose1d(32, 16, 4, stride=2, padding=1), nn.LeakyReLU(0.1),
+            nn.ConvTranspose1d(16, 6, 3, stride=1, padding=1),
+        )
+
+    def forward(self, h):
+        """``[B, in_dim]`` -> ``[B, history, 6]``."""
+        return self.net(self.fc(h).view(h.shape[0], 64, self.start)).transpose(1, 2)
+
+
+class DREMModel(nn.Module):
+    """Encoder ``h(s)`` and decoders. Inputs: dict of uint8 images ``[B, H, W, 3]`` and ``ft [B, T, 6]``."""
+
+    def __init__(self, config: ModelConfig, ft_scale: float = 10.0):
+        super().__init__()
+        self.config = config
+        # F/T in newtons spans 0-100; a fixed scale keeps the conv inputs near unit size.
+        self.register_buffer("ft_scale", torch.tensor(float(ft_scale)))
+        self.image_encoders = nn.ModuleDict(
+            {c: ImageEncoder(config.channels, config.image_dim, config.image_size) for c in config.cameras}
+        )
+        self.image_decoders = nn.ModuleDict(
+            {c: ImageDecoder(config.channels, config.latent_dim, config.image_size) for c in config.cameras}
+        )
+        fused = config.image_dim * len(config.cameras)
+        if "ft" in config.modalities:
+            if config.ft_history % 4:
+                raise ValueError(f"ft_history must be a multiple of 4 for the decoder, got {config.ft_history}")
+            self.ft_encoder = FTEncoder(config.ft_dim, config.ft_history)
+            self.ft_decoder = FTDecoder(config.latent_dim, config.ft_history)
+            fused += config.ft_dim
+        self.fusion = nn.Sequential(nn.Linear(fused, 256), nn.LeakyReLU(0.1), nn.Linear(256, config.latent_dim))
+
+    def prepare(self, batch: dict) -> dict:
+        """uint8 images ``[B, H, W, 3]`` -> floats ``[B, 3, H, W]`` in [0, 1]; F/T scaled."""
+        out = {}
+        for c in self.config.cameras:
+            img = batch[c]
+            if img.dtype == torch.uint8:
+                img = img.float() / 255.0
+            if img.shape[-1] == 3:
+                img = img.permute(0, 3, 1, 2)
+            if img.shape[-1] != self.config.image_size or img.shape[-2] != self.config.image_size:
+                img = F.interpolate(img, size=(self.config.image_size,) * 2, mode="bilinear", align_corners=False)
+            out[c] = img.contiguous()
+        if "ft" in self.config.modalities:
+            out["ft"] = batch["ft"].float() / self.ft_scale
+        return out
+
+    def encode(self, inputs: dict) -> torch.Tensor:
+        """Prepared inputs -> latent ``[B, latent_dim]``."""
+        parts = [self.image_encoders[c](inputs[c]) for c in self.config.cameras]
+        if "ft" in self.config.modalities:
+            parts.append(self.ft_encoder(inputs["ft"]))
+        return self.fusion(torch.cat(parts, dim=1))
+
+    def decode(self, h: torch.Tensor) -> dict:
+        """Latent -> image logits per camera and the scaled F/T history."""
+        out = {c: self.image_decoders[c](h) for c in self.config.cameras}
+        if "ft" in self.config.modalities:
+            out["ft"] = self.ft_decoder(h)
+        return out
+
+    def forward(self, batch: dict):
+        """Raw batch -> (latent, reconstruction, prepared inputs)."""
+        inputs = self.prepare(batch)
+        h = self.encode(inputs)
+        return h, self.decode(h), inputs
+
+
+def reconstruction_loss(recon: dict, inputs: dict) -> torch.Tensor:
+    """Sigmoid cross-entropy per image pixel plus L2 on the F/T history (Section III-B.2)."""
+    loss = recon[next(iter(recon))].new_zeros(())
+    for key, pred in recon.items():
+        if key == "ft":
+            loss = loss + F.mse_loss(pred, inputs["ft"])
+        else:
+            loss = loss + F.binary_cross_entropy_with_logits(pred, inputs[key])
+    return loss
+
+
+def cosine_distance(h: torch.Tensor, h_goal: torch.Tensor) -> torch.Tensor:
+    """``1 - <h_bar, h_bar_G>`` with L2-normalised vectors (the paper's latent distance)."""
+    return 1.0 - (F.normalize(h, dim=-1) * F.normalize(h_goal, dim=-1)).sum(-1)

@@ -1,0 +1,228 @@
+"""Train the DREM progress model on a task progress tree (Section III-B.3 of the paper).
+
+Every iteration draws the same number of temporally neighbouring pairs (depths at most
+``eps`` apart) and non-neighbouring pairs from the tree, embeds both states of each pair and
+the goal state, and minimises ``L_triplet + alpha * L_reconstruction``. A state's temporal
+position is minus its depth: the goal (depth 0) is last.
+
+The loop checkpoints itself (model, optimiser, step, RNG) atomically every ``save_every``
+iterations and resumes from that file; losses go to TensorBoard in ``<out>/tb``. The result is
+a reward checkpoint (``drem_maniskill.drem.checkpoint``) with ``h(s_0)`` and ``h(s_G)`` of the
+expert's first and last observations.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import h5py
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+import drem_maniskill
+from drem_maniskill.drem.checkpoint import save_checkpoint
+from drem_maniskill.drem.losses import triplet_loss
+from drem_maniskill.drem.model import CAMERA_OF, DREMModel, ModelConfig, cosine_distance, reconstruction_loss
+
+
+@dataclass
+class TrainConfig:
+    """Training hyper-parameters; defaults are the paper's."""
+
+    iterations: int = 20_000
+    lr: float = 2e-4
+    eps: float = 4.0
+    beta1: float = 0.04
+    beta2: float = 0.04
+    alpha: float = 0.2
+    pairs_per_batch: int = 32
+    """Pairs per iteration, half temporally neighbouring and half not."""
+    seed: int = 0
+    save_every: int = 200
+    log_every: int = 20
+    threads: Optional[int] = None
+    model: ModelConfig = field(default_factory=ModelConfig)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "TrainConfig":
+        """``paper`` (20k iterations, 128 px) or the CPU-sized ``quick`` and ``tiny``."""
+        presets = {
+            "paper": {},
+            "quick": dict(iterations=300, pairs_per_batch=16, model=ModelConfig(image_size=64)),
+            "tiny": dict(iterations=20, pairs_per_batch=4, save_every=10, model=ModelConfig(image_size=64)),
+        }
+        if name not in presets:
+            raise ValueError(f"unknown training preset {name!r}; choose one of {list(presets)}")
+        merged = {**presets[name], **overrides}
+        return cls(**merged)
+
+
+class TreeDataset:
+    """The progress tree in memory: uint8 images at the model's size, F/T, depths."""
+
+    def __init__(self, path: str, config: ModelConfig):
+        if not Path(path).exists():
+            raise FileNotFoundError(f"progress-tree dataset {path} not found; make one with `drem-maniskill sample`")
+        try:
+            f = h5py.File(path, "r")
+        except OSError as err:
+            raise ValueError(f"cannot read dataset {path}: {err}; it may be truncated, re-run `drem-maniskill sample`") from err
+        with f:
+            if not f.attrs.get("complete", False):
+                raise ValueError(f"{path} is an unfinished sampling run; resume it with `drem-maniskill sample`")
+            self.header = json.loads(f.attrs["header"])
+            self.depth = torch.as_tensor(f["depth"][()]).long()
+            flags = f["in_start_region"][()]
+            if not flags.any():
+                raise ValueError(
+                    f"{path} has no start-region states: the tree never reached the start region, so it cannot "
+                    "define task progress from the start. Re-sample with a larger --max-depth."
+                )
+            self.images = {c: self._resize(f[f"{c}_rgb"][()], config.image_size) for c in config.cameras}
+            self.ft = torch.as_tensor(f["ft"][()]).float()
+            self.expert = {
+                which: {c: self._resize(f[f"expert/{which}/{c}_rgb"][()][None], config.image_size) for c in config.cameras}
+                | ({"ft": torch.as_tensor(f[f"expert/{which}/ft"][()][None]).float()} if "ft" in config.modalities else {})
+                for which in ("first", "last")
+            }
+        self.goal_index = int(torch.nonzero(self.depth == 0)[0])
+        self.by_depth = {int(d): torch.nonzero(self.depth == d).flatten() for d in torch.unique(self.depth)}
+
+    @staticmethod
+    def _resize(images: np.ndarray, size: int) -> torch.Tensor:
+        x = torch.as_tensor(images)
+        if x.shape[1] == size:
+            return x.contiguous()
+        # Once, at load time: area averaging keeps thin features like the peg visible.
+        y = F.interpolate(x.permute(0, 3, 1, 2).float(), size=(size, size), mode="area")
+        return y.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).contiguous()
+
+    def batch(self, idx: torch.Tensor) -> dict:
+        """Raw model inputs of nodes ``idx``."""
+        out = {c: self.images[c][idx] for c in self.images}
+        out["ft"] = self.ft[idx]
+        return out
+
+    def sample_pairs(self, n: int, eps: float, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` pairs of node indices: the first half neighbours (|depth gap| <= eps), the rest not."""
+        depths = torch.tensor(sorted(self.by_depth))
+        first = torch.randint(len(self.depth), (n,), generator=gen)
+        d1 = self.depth[first]
+        gaps = (depths[None, :] - d1[:, None]).abs()
+        near = gaps <= eps
+        want_near = torch.arange(n) < n // 2
+        allowed = torch.where(want_near[:, None], near, ~near)
+        # A node with no far depth (tiny trees) falls back to a neighbour rather than failing.
+        allowed = torch.where(allowed.any(1, keepdim=True), allowed, near)
+        choice = torch.multinomial(allowed.float(), 1, generator=gen).flatten()
+        second = torch.stack([self.by_depth[int(d)][torch.randint(len(self.by_depth[int(d)]), (1,), generator=gen)][0] for d in depths[choice]])
+        return first, second
+
+
+def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainConfig(), progress: bool = True) -> str:
+    """Train on a progress tree; writes ``<out_dir>/drem.pt`` (and resumes from ``train_state.pt``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    data = TreeDataset(dataset_path, config.model)
+    torch.manual_seed(config.seed)
+    model = DREMModel(config.model)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    gen = torch.Generator().manual_seed(config.seed)
+    step = 0
+    state_path = out / "train_state.pt"
+    config_json = json.loads(json.dumps(asdict(config)))
+    if state_path.exists():
+        state = torch.load(state_path, map_location="cpu", weights_only=True)
+        if json.loads(state["config"]) == config_json and state["dataset"] == str(Path(dataset_path).resolve()):
+            model.load_state_dict(state["model"])
+            opt.load_state_dict(_unflatten_opt(state["opt"]))
+            gen.set_state(state["gen"])
+            step = int(state["step"])
+    (out / "config.json").write_text(json.dumps(dict(train=config_json, dataset=str(dataset_path), sampler=data.header), indent=2))
+
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(str(out / "tb"))
+    goal = data.batch(torch.tensor([data.goal_index]))
+    t0, seen = time.time(), 0
+    bar = tqdm(total=config.iterations, initial=step, desc="train reward", unit="it", disable=not progress)
+    model.train()
+    while step < config.iterations:
+        a, b = data.sample_pairs(config.pairs_per_batch, config.eps, gen)
+        idx = torch.cat([a, b])
+        batch = {k: torch.cat([v, goal[k]]) for k, v in data.batch(idx).items()}
+        h, recon, inputs = model(batch)
+        h_goal, h = h[-1:], h[:-1]
+        dist = cosine_distance(h, h_goal)
+        n = len(a)
+        # Temporal position = -depth: the goal (depth 0) comes last.
+        l_triplet = triplet_loss(dist[:n], dist[n:], -data.depth[a], -data.depth[b], config.eps, config.beta1, config.beta2).mean()
+        l_recon = reconstruction_loss(recon, inputs)
+        loss = l_triplet + config.alpha * l_recon
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        step += 1
+        seen += len(idx) + 1
+        bar.update(1)
+        if step % config.log_every == 0 or step == config.iterations:
+            rate = seen / max(time.time() - t0, 1e-9)
+            writer.add_scalar("loss/total", loss.item(), step)
+            writer.add_scalar("loss/triplet", l_triplet.item(), step)
+            writer.add_scalar("loss/reconstruction", l_recon.item(), step)
+            writer.add_scalar("speed/samples_per_s", rate, step)
+            bar.set_postfix(triplet=f"{l_triplet.item():.4f}", recon=f"{l_recon.item():.4f}", samples_s=f"{rate:.0f}")
+        if step % config.save_every == 0 or step == config.iterations:
+            _save_train_state(state_path, model, opt, gen, step, config_json, dataset_path)
+    bar.close()
+    writer.close()
+    return export_reward(model, data, config, out / "drem.pt")
+
+
+def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path: Path) -> str:
+    """Write the reward checkpoint: weights, ``h(s_0)``, ``h(s_G)`` and the header."""
+    model.eval()
+    with torch.no_grad():
+        h0 = model.encode(model.prepare(data.expert["first"]))
+        hg = model.encode(model.prepare(data.expert["last"]))
+    header = dict(
+        env_id=data.header["env_id"],
+        env_kwargs=data.header.get("env_kwargs", {}),
+        modalities=list(config.model.modalities),
+        camera_uids=[CAMERA_OF[c] for c in config.model.cameras],
+        image_size=config.model.image_size,
+        ft_history=config.model.ft_history,
+        render_style=data.header.get("env_kwargs", {}).get("render_style", "lean"),
+        model=config.model.to_dict(),
+        train={k: v for k, v in asdict(config).items() if k != "model"},
+        sampler=data.header.get("config", {}),
+        package_version=drem_maniskill.__version__,
+    )
+    weights = {f"model.{k}": v for k, v in model.state_dict().items()}
+    weights["h_start"] = h0[0]
+    weights["h_goal"] = hg[0]
+    return save_checkpoint(str(path), header, weights)
+
+
+def _flatten_opt(state: dict) -> dict:
+    return {"state": {str(k): v for k, v in state["state"].items()}, "param_groups": json.dumps(state["param_groups"])}
+
+
+def _unflatten_opt(state: dict) -> dict:
+    return {"state": {int(k): v for k, v in state["state"].items()}, "param_groups": json.loads(state["param_groups"])}
+
+
+def _save_train_state(path: Path, model, opt, gen, step, config_json, dataset_path) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(dict(model=model.state_dict(), opt=_flatten_opt(opt.state_dict()), gen=gen.get_state(), step=step,
+                    config=json.dumps(config_json), dataset=str(Path(dataset_path).resolve())), tmp)
+    os.replace(tmp, path)
