@@ -10,11 +10,15 @@ import sys
 def _cmd_demo(args) -> None:
     from drem_maniskill.demo import run_demo
 
-    summary = run_demo(out=args.out, tasks=args.tasks, episodes=args.episodes, seed=args.seed)
+    summary = run_demo(out=args.out, tasks=args.tasks, episodes=args.episodes, seed=args.seed, scale=args.scale,
+                       drem=not args.no_drem)
     for task, s in summary.items():
         print(f"{task}: expert success {sum(s['success'])}/{len(s['success'])}, lengths {s['lengths']}")
+        if "checkpoint" in s:
+            print(f"  reward checkpoint: {s['checkpoint']}")
+            print(f"  quality: {json.dumps(s['quality'])}")
         for p in s["plots"]:
-            print(f"  wrote {p}")
+            print(f"  plot: {p}")
     print(f"summary: {args.out}/summary.json")
 
 
@@ -34,6 +38,35 @@ def _cmd_scripted_success(args) -> None:
     print(json.dumps(result, indent=2))
 
 
+def _cmd_sample(args) -> None:
+    from drem_maniskill.drem.sampling import SamplerConfig, backward_sample
+
+    overrides = {k: v for k, v in dict(num_children=args.num_children, num_seeds=args.num_seeds, delta=args.delta,
+                                       max_depth=args.max_depth, action_scale=args.action_scale, seed=args.seed,
+                                       episode=args.episode, workers=args.workers).items() if v is not None}
+    config = SamplerConfig.preset(args.preset, **overrides)
+    print(f"sampler config: {config}")
+    path = backward_sample(args.expert, args.out, config)
+    print(f"progress tree: {path}")
+
+
+def _cmd_train_reward(args) -> None:
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.drem.train import TrainConfig, train_reward
+
+    config = TrainConfig.preset(args.preset)
+    model = config.model
+    if args.modalities or args.image_size:
+        model = ModelConfig(**{**model.to_dict(), **({"modalities": tuple(args.modalities)} if args.modalities else {}),
+                               **({"image_size": args.image_size} if args.image_size else {})})
+    overrides = {k: v for k, v in dict(iterations=args.iterations, pairs_per_batch=args.pairs, seed=args.seed,
+                                       threads=args.threads).items() if v is not None}
+    config = TrainConfig(**{**{f: getattr(config, f) for f in config.__dataclass_fields__}, **overrides, "model": model})
+    print(f"training config: {config}")
+    path = train_reward(args.dataset, args.out, config)
+    print(f"reward checkpoint: {path}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``drem-maniskill`` command."""
     from drem_maniskill.demo import TASKS
@@ -41,11 +74,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="drem-maniskill", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("demo", help="roll out the expert on both tasks; write image strips and F/T plots")
+    p = sub.add_parser("demo", help="the DREM chain at a small scale on both tasks, with plots")
     p.add_argument("--out", default="outputs/demo", help="output folder (default: %(default)s)")
     p.add_argument("--tasks", nargs="+", default=list(TASKS), help="task ids (default: both)")
     p.add_argument("--episodes", type=int, default=2, help="expert episodes per task (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="first episode seed (default: %(default)s)")
+    p.add_argument("--scale", default="demo", choices=["demo", "tiny"], help="demo: minutes here; tiny: for CI")
+    p.add_argument("--no-drem", action="store_true", help="only record and draw the expert")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("record-expert", help="record scripted-expert episodes in ManiSkill's .h5/.json format")
@@ -64,6 +99,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=100, help="number of seeds (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="first seed (default: %(default)s)")
     p.set_defaults(func=_cmd_scripted_success)
+
+    p = sub.add_parser("sample", help="backward sampling: build the task progress tree from an expert trajectory")
+    p.add_argument("--expert", required=True, help="expert trajectory .h5 (RecordEpisode format, .json beside it)")
+    p.add_argument("--out", default="outputs/tree.h5", help="dataset to write (default: %(default)s); resumes from <out>.partial")
+    p.add_argument("--preset", default="paper", choices=["paper", "quick", "tiny"], help="paper: M=500; quick: M=24")
+    p.add_argument("--num-children", type=int, help="M, random actions per seed")
+    p.add_argument("--num-seeds", type=int, help="N, seeds kept per depth (paper: 1)")
+    p.add_argument("--delta", type=float, help="stop when N*delta seeds are in the start region")
+    p.add_argument("--max-depth", type=int, help="give up past this depth")
+    p.add_argument("--action-scale", type=float, help="random actions uniform in [-s, s]")
+    p.add_argument("--seed", type=int, help="random seed")
+    p.add_argument("--episode", type=int, help="episode of the expert file")
+    p.add_argument("--workers", type=int, help="worker processes")
+    p.set_defaults(func=_cmd_sample)
+
+    p = sub.add_parser("train-reward", help="train the DREM progress model on a progress tree")
+    p.add_argument("--dataset", required=True, help="progress tree .h5 from `sample`")
+    p.add_argument("--out", default="outputs/reward", help="output folder: drem.pt, tb/, train_state.pt (resume)")
+    p.add_argument("--preset", default="paper", choices=["paper", "quick", "tiny"],
+                   help="paper: 20k iterations at 128 px; quick/tiny: CPU-sized")
+    p.add_argument("--modalities", nargs="+", choices=["fixed", "wrist", "ft"], help="inputs (default: all three)")
+    p.add_argument("--image-size", type=int, help="model input size (multiple of 64)")
+    p.add_argument("--iterations", type=int)
+    p.add_argument("--pairs", type=int, help="pairs per batch (half neighbours)")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.set_defaults(func=_cmd_train_reward)
     return parser
 
 

@@ -1,7 +1,14 @@
-"""The README's main job: roll out the expert on both tasks and draw what it sees and feels.
+"""The README's main job: the whole DREM chain at a small scale, with plots, on both tasks.
 
-For each task it records expert episodes with ``RecordEpisode`` (ManiSkill's .h5/.json), then
-reads the file back and writes, per episode 0:
+For each task: record expert episodes with ``RecordEpisode`` (ManiSkill's .h5/.json), build a
+task progress tree by backward sampling from the first episode, train the progress model, and
+examine the learned reward with the paper's four scripted policies on held-out seeds. It writes,
+per task:
+
+* ``<task>/reward/drem.pt``: the reward checkpoint, usable as
+  ``gym.make(task, reward_mode="drem", drem_checkpoint=...)``;
+* ``<task>/examination/examination.png`` and ``quality.json``: reward against time per policy
+  and the model-card figures (value-order Spearman, AUROC, Random mean, contact-loss drop);
 
 * ``<task>/fixed_camera_strip.png`` and ``<task>/wrist_camera_strip.png``: frames along the
   episode, left to right;
@@ -69,8 +76,23 @@ def _save_png(img: np.ndarray, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: int = 2, seed: int = 0) -> dict:
-    """Record ``episodes`` expert episodes per task and write image strips and F/T plots."""
+SCALES = {
+    # sampler preset, training preset and iterations, examination seeds
+    "demo": dict(sampler="quick", train="quick", iterations=150, exam_seeds=3),
+    "tiny": dict(sampler="tiny", train="tiny", iterations=4, exam_seeds=1),
+}
+
+
+def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: int = 2, seed: int = 0,
+             scale: str = "demo", drem: bool = True) -> dict:
+    """Record expert episodes per task, draw them, and (``drem``) run the DREM chain on them."""
+    from drem_maniskill.drem.evaluate import examine
+    from drem_maniskill.drem.sampling import SamplerConfig, backward_sample
+    from drem_maniskill.drem.train import TrainConfig, train_reward
+
+    if scale not in SCALES:
+        raise ValueError(f"unknown demo scale {scale!r}; choose one of {list(SCALES)}")
+    sc = SCALES[scale]
     import gymnasium as gym
 
     root = Path(out)
@@ -94,6 +116,20 @@ def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: 
             success=result.success, lengths=result.lengths, trajectory=result.h5_path,
             plots=[str(folder / n) for n in ("fixed_camera_strip.png", "wrist_camera_strip.png", "ft.png")],
         )
+        if not drem:
+            continue
+        tree = backward_sample(result.h5_path, str(folder / "tree.h5"), SamplerConfig.preset(sc["sampler"], seed=seed))
+        config = TrainConfig.preset(sc["train"], iterations=sc["iterations"])
+        checkpoint = train_reward(tree, str(folder / "reward"), config)
+        # Held-out seeds: after the recorded ones.
+        exam_seeds = range(seed + 1000, seed + 1000 + sc["exam_seeds"])
+        quality = examine(task, checkpoint, seeds=exam_seeds, out_dir=str(folder / "examination"))
+        summary[task].update(
+            tree=tree, checkpoint=checkpoint,
+            quality={k: quality[k] for k in ("value_order_spearman", "final_reward_auroc", "random_mean_reward",
+                                             "search_fail_contact_loss")},
+        )
+        summary[task]["plots"].append(str(folder / "examination" / "examination.png"))
     tmp = root / ".summary.json.tmp"
     tmp.write_text(json.dumps(summary, indent=2))
     os.replace(tmp, root / "summary.json")

@@ -142,7 +142,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     config_json = json.loads(json.dumps(asdict(config)))
     if state_path.exists():
         state = torch.load(state_path, map_location="cpu", weights_only=True)
-        if json.loads(state["config"]) == config_json and state["dataset"] == str(Path(dataset_path).resolve()):
+        if _resumable(json.loads(state["config"])) == _resumable(config_json) and state["dataset"] == str(Path(dataset_path).resolve()):
             model.load_state_dict(state["model"])
             opt.load_state_dict(_unflatten_opt(state["opt"]))
             gen.set_state(state["gen"])
@@ -211,6 +211,11 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
     weights["h_start"] = h0[0]
     weights["h_goal"] = hg[0]
     return save_checkpoint(str(path), header, weights)
+
+
+def _resumable(config_json: dict) -> dict:
+    """The config keys that must match to resume (more iterations or other logging are fine)."""
+    return {k: v for k, v in config_json.items() if k not in ("iterations", "save_every", "log_every", "threads")}
 
 
 def _flatten_opt(state: dict) -> dict:

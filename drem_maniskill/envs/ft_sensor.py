@@ -51,6 +51,8 @@ class WristFTSensor:
     def set_state(self, state: torch.Tensor, env_idx: torch.Tensor | None = None) -> None:
         """Restore the history from ``get_state()`` output, for all envs or ``env_idx``."""
         state = torch.as_tensor(state, device=self.buffer.device, dtype=self.buffer.dtype)
+        if state.ndim == 1:  # an unbatched state, as ManiSkill's trajectory replay passes
+            state = state[None]
         state = state.reshape(state.shape[0], self.history, 6)
         if env_idx is None:
             self.buffer = state.clone()

@@ -337,6 +337,8 @@ class InsertionEnv(BaseEnv):
             self.ft.set_state(task["ft_history"], env_idx)
         if "drive_targets" in task:
             targets = torch.as_tensor(task["drive_targets"], device=self.device)
+            if targets.ndim == 1:
+                targets = targets[None].expand(self.num_envs, -1)
             if env_idx is not None:
                 current = self.agent.robot.get_drive_targets().clone()
                 current[env_idx] = targets[env_idx]

@@ -1,0 +1,125 @@
+"""Measure a DREM reward: value-order correlation, examination policies, plots.
+
+* **Value-order correlation**: mean Spearman correlation between the reward and the time step
+  along expert episodes from held-out seeds (target >= 0.9).
+* **Examination** (the paper's Fig. 4): reward against time for Direct Success, Align Success,
+  Search Fail and Random; the AUROC of the final-step reward separating successful from failed
+  episodes; the Random policy's mean reward (target < 0.2); the reward just before and just
+  after Search Fail loses contact.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+from scipy.stats import spearmanr
+
+from drem_maniskill.scripted import get_policy
+
+EXAMINATION = ("direct_success", "align_success", "search_fail", "random")
+
+
+def auroc(scores_pos: Sequence[float], scores_neg: Sequence[float]) -> float:
+    """Area under the ROC curve (Mann-Whitney U); NaN when a class is empty."""
+    pos, neg = np.asarray(scores_pos, float), np.asarray(scores_neg, float)
+    if len(pos) == 0 or len(neg) == 0:
+        return float("nan")
+    greater = (pos[:, None] > neg[None, :]).sum() + 0.5 * (pos[:, None] == neg[None, :]).sum()
+    return float(greater / (len(pos) * len(neg)))
+
+
+def rollout(env, policy_name: str, seed: int, steps: int | None = None, stop_on_success: bool = True) -> dict:
+    """One episode: per-step reward, success, and the approach-axis force (for contact loss)."""
+    policy = get_policy(policy_name, env, seed=seed)
+    obs, _ = env.reset(seed=seed)
+    rewards, force, success = [], [], False
+    for _ in range(steps or env.spec.max_episode_steps or 50):
+        obs, reward, terminated, truncated, info = env.step(policy(obs))
+        rewards.append(float(reward[0]))
+        force.append(float(env.unwrapped.ft.buffer[0, -1, 2].abs()))
+        success = success or bool(info["success"][0])
+        if (stop_on_success and success) or bool(truncated.any()):
+            break
+    return dict(rewards=rewards, force=force, success=success)
+
+
+def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float] | None:
+    """Reward just before and just after the last fall of the wrist force below ``contact``."""
+    f = np.asarray(episode["force"])
+    for t in range(len(f) - 1, 0, -1):
+        if f[t - 1] > contact and f[t] < 1.0:
+            return episode["rewards"][t - 1], episode["rewards"][t]
+    return None
+
+
+def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_dir: str | None = None,
+            policies: Sequence[str] = EXAMINATION, env_kwargs: dict | None = None) -> dict:
+    """Run the quality measures of the model card; writes ``quality.json`` and ``examination.png``."""
+    import gymnasium as gym
+
+    env = gym.make(env_id, obs_mode="state_dict", reward_mode="drem", drem_checkpoint=str(checkpoint), **(env_kwargs or {}))
+    try:
+        expert = [rollout(env, "expert", s) for s in seeds]
+        curves = {p: [rollout(env, p, s, stop_on_success=False) for s in seeds] for p in policies}
+    finally:
+        env.close()
+    rho = [spearmanr(np.arange(len(e["rewards"])), e["rewards"]).correlation for e in expert if len(e["rewards"]) > 2]
+    finals = [(ep["rewards"][-1], ep["success"]) for eps in curves.values() for ep in eps]
+    drops = [d for ep in curves.get("search_fail", []) if (d := contact_loss_drop(ep)) is not None]
+    result = dict(
+        env_id=env_id, checkpoint=str(checkpoint), seeds=list(map(int, seeds)),
+        value_order_spearman=float(np.nanmean(rho)) if rho else float("nan"),
+        value_order_spearman_per_episode=[float(r) for r in rho],
+        final_reward_auroc=auroc([r for r, s in finals if s], [r for r, s in finals if not s]),
+        random_mean_reward=float(np.mean([np.mean(ep["rewards"]) for ep in curves.get("random", [])])) if "random" in curves else None,
+        search_fail_contact_loss=dict(
+            episodes_with_loss=len(drops),
+            before=float(np.mean([d[0] for d in drops])) if drops else None,
+            after=float(np.mean([d[1] for d in drops])) if drops else None,
+        ),
+        success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
+        curves={p: [ep["rewards"] for ep in eps] for p, eps in curves.items()},
+        expert_curves=[e["rewards"] for e in expert],
+    )
+    if out_dir:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        plot_examination(result, out / "examination.png")
+        tmp = out / ".quality.json.tmp"
+        tmp.write_text(json.dumps(result, indent=1))
+        os.replace(tmp, out / "quality.json")
+    return result
+
+
+def plot_examination(result: dict, path: Path) -> None:
+    """Reward against time step per policy, mean and spread over seeds (the paper's Fig. 4)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for i, (name, runs) in enumerate(result["curves"].items()):
+        length = max(len(r) for r in runs)
+        arr = np.full((len(runs), length), np.nan)
+        for k, r in enumerate(runs):
+            arr[k, : len(r)] = r
+        mean, std = np.nanmean(arr, 0), np.nanstd(arr, 0)
+        t = np.arange(1, length + 1)
+        ax.plot(t, mean, color=f"C{i}", label=f"{name} (success {result['success_rate'][name]:.0%})")
+        ax.fill_between(t, mean - std, mean + std, color=f"C{i}", alpha=0.2)
+    ax.set_xlabel("time step (5 Hz)")
+    ax.set_ylabel("DREM reward")
+    ax.set_title(f"{result['env_id']}: value-order Spearman {result['value_order_spearman']:.2f}, "
+                 f"AUROC {result['final_reward_auroc']:.2f}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    os.replace(tmp, path)
