@@ -168,7 +168,9 @@ class DREMModel(nn.Module):
             if img.shape[-1] == 3:
                 img = img.permute(0, 3, 1, 2)
             if img.shape[-1] != self.config.image_size or img.shape[-2] != self.config.image_size:
-                img = F.interpolate(img, size=(self.config.image_size,) * 2, mode="bilinear", align_corners=False)
+                # Same resampling as the training data (TreeDataset): area when shrinking.
+                mode = "area" if img.shape[-1] > self.config.image_size else "bilinear"
+                img = F.interpolate(img, size=(self.config.image_size,) * 2, mode=mode)
             out[c] = img.contiguous()
         if "ft" in self.config.modalities:
             out["ft"] = batch["ft"].float() / self.ft_scale

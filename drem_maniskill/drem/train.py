@@ -87,8 +87,9 @@ class TreeDataset:
                 )
             self.images = {c: self._resize(f[f"{c}_rgb"][()], config.image_size) for c in config.cameras}
             self.ft = torch.as_tensor(f["ft"][()]).float()
+            # Raw camera images: h(s_0) and h(s_G) go through the same resizing as rewards do.
             self.expert = {
-                which: {c: self._resize(f[f"expert/{which}/{c}_rgb"][()][None], config.image_size) for c in config.cameras}
+                which: {c: torch.as_tensor(f[f"expert/{which}/{c}_rgb"][()][None]) for c in config.cameras}
                 | ({"ft": torch.as_tensor(f[f"expert/{which}/ft"][()][None]).float()} if "ft" in config.modalities else {})
                 for which in ("first", "last")
             }
