@@ -220,3 +220,23 @@ def test_reward_mode_drem_in_every_obs_mode(pipeline):
     np.testing.assert_allclose(results["rgb"], results["none"], atol=1e-4)
     with pytest.raises(CheckpointError, match="USBInsertion-v1"):
         gym.make("USBInsertion-v1", reward_mode="drem", drem_checkpoint=pipeline["checkpoint"])
+
+
+@pytest.mark.slow
+def test_wrapper_replaces_the_reward_and_keeps_the_original(pipeline):
+    from drem_maniskill.drem.wrapper import DREMRewardWrapper
+
+    inner = gym.make("PegInHole-v1", obs_mode="state", reward_mode="normalized_dense")
+    reference = gym.make("PegInHole-v1", obs_mode="rgb", reward_mode="drem", drem_checkpoint=pipeline["checkpoint"])
+    env = DREMRewardWrapper(inner, pipeline["checkpoint"])
+    try:
+        env.reset(seed=9)
+        reference.reset(seed=9)
+        action = torch.tensor([[0.2, -0.1, -0.4, 0.0, 0.0, 0.1]])
+        _, reward, _, _, info = env.step(action)
+        _, expected, _, _, _ = reference.step(action)
+        torch.testing.assert_close(reward, expected, atol=1e-4, rtol=0)
+        assert 0 < info["original_reward"].item() <= 1  # the task's normalized_dense
+    finally:
+        env.close()
+        reference.close()
