@@ -67,6 +67,15 @@ def _cmd_train_reward(args) -> None:
     print(f"reward checkpoint: {path}")
 
 
+def _cmd_examine(args) -> None:
+    from drem_maniskill.drem.evaluate import examine
+
+    result = examine(args.task, args.checkpoint, seeds=range(args.seed, args.seed + args.episodes), out_dir=args.out)
+    keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss", "success_rate")
+    print(json.dumps({k: result[k] for k in keys}, indent=2))
+    print(f"plot: {args.out}/examination.png, numbers: {args.out}/quality.json")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``drem-maniskill`` command."""
     from drem_maniskill.demo import TASKS
@@ -99,6 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=100, help="number of seeds (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="first seed (default: %(default)s)")
     p.set_defaults(func=_cmd_scripted_success)
+
+    p = sub.add_parser("examine", help="examine a DREM reward with the four scripted policies; plot and JSON")
+    p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
+    p.add_argument("--checkpoint", required=True, help="reward checkpoint (.pt)")
+    p.add_argument("--out", default="outputs/examination", help="output folder (default: %(default)s)")
+    p.add_argument("--episodes", type=int, default=20, help="seeds per policy (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="first seed; keep clear of the expert's (default: %(default)s)")
+    p.set_defaults(func=_cmd_examine)
 
     p = sub.add_parser("sample", help="backward sampling: build the task progress tree from an expert trajectory")
     p.add_argument("--expert", required=True, help="expert trajectory .h5 (RecordEpisode format, .json beside it)")

@@ -7,6 +7,7 @@ Observations of ``num_envs`` envs in, a ``[num_envs]`` tensor out, without gradi
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Optional
 
@@ -16,12 +17,18 @@ from torch import nn
 from drem_maniskill.drem.checkpoint import CheckpointError, check_compatible, load_checkpoint
 from drem_maniskill.drem.model import CAMERA_OF, DREMModel, ModelConfig, cosine_distance
 
-REWARDS_DIR = Path(__file__).resolve().parents[2] / "rewards"
+# rewards/ sits beside the package in a checkout (editable install); a wheel installs it as
+# data files under <prefix>/share/drem-maniskill/rewards (pyproject's data-files).
+REWARDS_DIRS = (Path(__file__).resolve().parents[2] / "rewards", Path(sys.prefix) / "share" / "drem-maniskill" / "rewards")
 
 
 def default_checkpoint(env_id: str, image_only: bool = False) -> Path:
     """Path of the shipped checkpoint for ``env_id`` (``rewards/<env_id>/drem.pt``)."""
-    return REWARDS_DIR / env_id / ("drem_image.pt" if image_only else "drem.pt")
+    name = "drem_image.pt" if image_only else "drem.pt"
+    for folder in REWARDS_DIRS:
+        if (folder / env_id / name).exists():
+            return folder / env_id / name
+    return REWARDS_DIRS[0] / env_id / name
 
 
 class DREMReward(nn.Module):

@@ -1,0 +1,132 @@
+"""DREM speed, measured side by side in one run and printed as ratios.
+
+1. Reward cost: an ``obs_mode="rgb"`` env step with ``reward_mode="drem"`` against the same
+   step with ``reward_mode="none"`` (target: DREM adds at most 15 %).
+2. Backward sampling: children per second (restore the seed state, step, render) against
+   plain ``rgb`` env steps per second (target: at least 0.7).
+3. Reward-model training: samples per second on this CPU (forward, backward, Adam step).
+
+Run: ``.venv/bin/python bench/reward_speed.py --checkpoint rewards/PegInHole-v1/drem.pt``
+(``--quick`` for a smoke run). Writes the numbers to ``--out`` as JSON too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+import drem_maniskill  # noqa: F401
+from drem_maniskill.drem.model import DREMModel, ModelConfig, cosine_distance, reconstruction_loss
+from drem_maniskill.drem.reward import default_checkpoint
+from drem_maniskill.drem.sampling import ChildSampler
+
+
+def time_steps(env, steps: int, seed: int = 0) -> list:
+    """Per-step wall times of random-action steps (reset when an episode ends)."""
+    env.reset(seed=seed)
+    gen = torch.Generator().manual_seed(seed)
+    times = []
+    for _ in range(steps):
+        action = torch.rand(1, 6, generator=gen) * 2 - 1
+        t = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(action)
+        times.append(time.perf_counter() - t)
+        if bool(terminated.any() or truncated.any()):
+            env.reset()
+    return times
+
+
+def bench_reward(task: str, checkpoint: str, steps: int) -> dict:
+    """Median step time with and without the DREM reward, interleaved in rounds."""
+    plain = gym.make(task, obs_mode="rgb", reward_mode="none")
+    drem = gym.make(task, obs_mode="rgb", reward_mode="drem", drem_checkpoint=checkpoint)
+    time_steps(plain, 5), time_steps(drem, 5)  # warm-up
+    a, b = [], []
+    for r in range(4):  # alternate so machine noise hits both alike
+        a += time_steps(plain, steps // 4, seed=r)
+        b += time_steps(drem, steps // 4, seed=r)
+    plain.close(), drem.close()
+    pa, pb = statistics.median(a), statistics.median(b)
+    return dict(rgb_step_ms=pa * 1e3, drem_step_ms=pb * 1e3, drem_overhead=(pb - pa) / pa)
+
+
+def bench_sampling(task: str, steps: int) -> dict:
+    """Children per second of the sampler against plain rgb steps per second."""
+    env = gym.make(task, obs_mode="rgb", reward_mode="none")
+    sampler = ChildSampler(task, {}, 0)
+    seed_state = sampler.unwrapped.get_state_dict()
+    rng = np.random.default_rng(0)
+    sampler.children(seed_state, rng.uniform(-1, 1, size=(4, 6)))  # warm-up
+    time_steps(env, 5)
+    t_children, t_steps = 0.0, 0.0
+    for r in range(4):
+        t = time.perf_counter()
+        sampler.children(seed_state, rng.uniform(-1, 1, size=(steps // 4, 6)))
+        t_children += time.perf_counter() - t
+        t_steps += sum(time_steps(env, steps // 4, seed=r))
+    sampler.close(), env.close()
+    children_s, steps_s = steps / t_children, steps / t_steps
+    return dict(children_per_s=children_s, rgb_steps_per_s=steps_s, ratio=children_s / steps_s)
+
+
+def bench_training(image_size: int, pairs: int, iterations: int) -> dict:
+    """Training samples per second for the model as configured by the training presets."""
+    model = DREMModel(ModelConfig(image_size=image_size))
+    opt = torch.optim.Adam(model.parameters(), lr=2e-4)
+    n = 2 * pairs + 1
+    batch = {c: torch.randint(0, 255, (n, image_size, image_size, 3), dtype=torch.uint8) for c in ("fixed", "wrist")}
+    batch["ft"] = torch.randn(n, 8, 6)
+    times = []
+    for k in range(iterations + 3):
+        t = time.perf_counter()
+        h, recon, inputs = model(batch)
+        loss = cosine_distance(h[:-1], h[-1:]).mean() + 0.2 * reconstruction_loss(recon, inputs)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if k >= 3:  # the first calls pay for oneDNN's kernel set-up
+            times.append(time.perf_counter() - t)
+    return dict(image_size=image_size, samples_per_iteration=n, samples_per_s=n / statistics.median(times),
+                threads=torch.get_num_threads())
+
+
+def main() -> None:
+    """Run the three measurements and print them with their ratios."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="PegInHole-v1")
+    parser.add_argument("--checkpoint", default=None, help="default: the shipped one for --task")
+    parser.add_argument("--steps", type=int, default=80)
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--out", default="outputs/bench/reward_speed.json")
+    args = parser.parse_args()
+    steps = 8 if args.quick else args.steps
+    checkpoint = args.checkpoint or str(default_checkpoint(args.task))
+    res = dict(task=args.task, checkpoint=checkpoint)
+    res["reward"] = bench_reward(args.task, checkpoint, steps)
+    res["sampling"] = bench_sampling(args.task, steps)
+    res["training"] = {str(s): bench_training(s, 16, 2 if args.quick else 10) for s in (64, 128)}
+    r, s = res["reward"], res["sampling"]
+    print(f"task {args.task}, checkpoint {checkpoint}")
+    print(f"rgb env step            {r['rgb_step_ms']:7.1f} ms")
+    print(f"rgb env step + DREM     {r['drem_step_ms']:7.1f} ms   -> DREM adds {100 * r['drem_overhead']:.1f} % (target <= 15 %)")
+    print(f"sampler children        {s['children_per_s']:7.1f} /s")
+    print(f"plain rgb env steps     {s['rgb_steps_per_s']:7.1f} /s   -> ratio {s['ratio']:.2f} (target >= 0.7)")
+    for size, t in res["training"].items():
+        print(f"training at {size:>3} px      {t['samples_per_s']:7.1f} samples/s ({t['samples_per_iteration']} per iteration, {t['threads']} threads)")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(res, indent=2))
+    os.replace(tmp, out)
+
+
+if __name__ == "__main__":
+    main()
