@@ -1,0 +1,51 @@
+"""The command line end to end at a tiny scale, as a user runs it (subprocesses)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import pytest
+
+
+def run(*args, cwd=None) -> str:
+    """Run ``drem-maniskill ARGS`` with this interpreter; fail with its output."""
+    proc = subprocess.run([sys.executable, "-m", "drem_maniskill.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_help_of_every_subcommand():
+    for cmd in ("demo", "record-expert", "scripted-success", "examine", "sample", "train-reward"):
+        assert "usage: drem-maniskill " + cmd in run(cmd, "--help")
+
+
+@pytest.mark.slow
+def test_chain_record_sample_train_examine(tmp_path):
+    run("record-expert", "--task", "USBInsertion-v1", "--seed", "1000", "--out", str(tmp_path / "expert"))
+    expert = tmp_path / "expert" / "expert.h5"
+    assert json.loads((tmp_path / "expert" / "expert.json").read_text())["env_info"]["env_id"] == "USBInsertion-v1"
+    out = run("sample", "--expert", str(expert), "--out", str(tmp_path / "tree.h5"), "--preset", "tiny")
+    assert "progress tree:" in out
+    with h5py.File(tmp_path / "tree.h5", "r") as f:
+        assert f["in_start_region"][()].any()
+    out = run("train-reward", "--dataset", str(tmp_path / "tree.h5"), "--out", str(tmp_path / "reward"), "--preset", "tiny")
+    assert (tmp_path / "reward" / "drem.pt").exists()
+    out = run("examine", "--task", "USBInsertion-v1", "--checkpoint", str(tmp_path / "reward" / "drem.pt"),
+              "--out", str(tmp_path / "exam"), "--episodes", "1")
+    quality = json.loads((tmp_path / "exam" / "quality.json").read_text())
+    assert set(quality["curves"]) == {"direct_success", "align_success", "search_fail", "random"}
+    assert quality["success_rate"]["direct_success"] == 1.0
+    assert (tmp_path / "exam" / "examination.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_demo_writes_its_plots(tmp_path):
+    out = run("demo", "--out", str(tmp_path / "demo"), "--tasks", "PegInHole-v1", "--episodes", "1", "--scale", "tiny")
+    assert "reward checkpoint:" in out
+    summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    for plot in summary["PegInHole-v1"]["plots"]:
+        assert Path(plot).stat().st_size > 2_000, plot
