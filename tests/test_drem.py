@@ -240,3 +240,17 @@ def test_wrapper_replaces_the_reward_and_keeps_the_original(pipeline):
     finally:
         env.close()
         reference.close()
+
+
+@pytest.mark.parametrize("task", ["PegInHole-v1", "USBInsertion-v1"])
+def test_shipped_checkpoints_load_by_default(task):
+    env = gym.make(task, obs_mode="state", reward_mode="drem")
+    try:
+        header = env.unwrapped._drem.header
+        assert header["env_id"] == task and header["modalities"] == ["fixed", "wrist", "ft"]
+        env.reset(seed=0)
+        _, reward, *_ = env.step(torch.zeros(1, 6))
+        # At the start of an episode the part is far from the goal: low progress.
+        assert reward.shape == (1,) and reward.item() < 0.5
+    finally:
+        env.close()
