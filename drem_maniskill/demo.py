@@ -78,7 +78,7 @@ def _save_png(img: np.ndarray, path: Path) -> None:
 
 SCALES = {
     # sampler preset, training preset and iterations, examination seeds
-    "demo": dict(sampler="quick", train="quick", iterations=150, exam_seeds=3),
+    "demo": dict(sampler="quick", train="quick", iterations=500, exam_seeds=3),
     "tiny": dict(sampler="tiny", train="tiny", iterations=4, exam_seeds=1),
 }
 
