@@ -73,7 +73,9 @@ class HoldGripperController(BaseController):
 @dataclass
 class HoldGripperControllerConfig(ControllerConfig):
     target: float = -0.005
-    """Finger target below any part's half-width, so the fingers press on the part."""
+    """Finger target. The part does not collide with the fingers, so they close fully (inside
+    the part's volume); resting them on its surface would change the images the shipped reward
+    checkpoints were trained on, so it waits for a retraining."""
     stiffness: float = 1e3
     damping: float = 1e2
     force_limit: float = 20.0

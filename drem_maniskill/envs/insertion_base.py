@@ -37,8 +37,8 @@ from drem_maniskill.envs.agent import FULL_URDF, HeldPart, PandaInsertion
 from drem_maniskill.envs.ft_sensor import WristFTSensor
 
 RENDER_STYLES = ("lean", "full")
-# Group-2 collision bit on every robot link, held part included: the fingers rest on the
-# part without contact forces between links of one rigid hand.
+# Group-2 collision bit on every robot link, held part included: no contact forces between
+# links of one rigid hand (fingers and part).
 _HELD_PART_BIT = 28
 
 # Hand-frame (z towards the fingers) pose of the TCP, from Panda's URDF.
@@ -238,7 +238,7 @@ class InsertionEnv(BaseEnv):
             self._socket_materials.append(socket_mat)
         self.socket = Actor.merge(sockets, name="socket")
         self.part = self.agent.robot.links_map["held_part"]
-        # The fingers rest on the part: contacts between links of one hand would only fight.
+        # Fingers and part are links of one rigid hand: contacts between them would only fight.
         for link in self.agent.robot.links:
             link.set_collision_group_bit(2, _HELD_PART_BIT, 1)
 
