@@ -66,11 +66,17 @@ class DREMReward(nn.Module):
     @property
     def camera_uids(self) -> list:
         """Camera uids the model reads."""
-        return [CAMERA_OF[c] for c in self.model.config.cameras]
+        return [self.camera_of[c] for c in self.model.config.cameras]
+
+    @property
+    def camera_of(self) -> dict:
+        """Image modality -> camera uid, as the checkpoint was trained (``base_camera`` on stock tasks)."""
+        uids = self.header.get("camera_uids") or [CAMERA_OF[c] for c in self.model.config.cameras]
+        return dict(zip(self.model.config.cameras, uids))
 
     def inputs_from_obs(self, obs: dict) -> dict:
         """Pick the model's inputs from a ManiSkill observation dict (``sensor_data`` + ``extra``)."""
-        batch = {c: obs["sensor_data"][CAMERA_OF[c]]["rgb"] for c in self.model.config.cameras}
+        batch = {c: obs["sensor_data"][self.camera_of[c]]["rgb"] for c in self.model.config.cameras}
         if "ft" in self.model.config.modalities:
             batch["ft"] = obs["extra"]["ft"]
         return batch

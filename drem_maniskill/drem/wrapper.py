@@ -13,7 +13,6 @@ import gymnasium as gym
 import torch
 
 from drem_maniskill.drem.checkpoint import CheckpointError
-from drem_maniskill.drem.model import CAMERA_OF
 from drem_maniskill.drem.reward import DREMReward
 
 
@@ -41,7 +40,7 @@ class DREMRewardWrapper(gym.Wrapper):
     def reward(self, obs) -> torch.Tensor:
         """DREM reward ``[num_envs]`` of the env's current state."""
         images = self._images(obs)
-        batch = {key: images[uid] for key, uid in CAMERA_OF.items() if uid in images}
+        batch = {key: images[uid] for key, uid in self.reward_model.camera_of.items()}
         if "ft" in self.reward_model.model.config.modalities:
             batch["ft"] = self.env.unwrapped.ft.buffer
         return self.reward_model(batch)
