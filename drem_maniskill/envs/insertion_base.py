@@ -67,6 +67,7 @@ class InsertionEnv(BaseEnv):
         "normalized_dense": "compute_normalized_dense_reward",
         "none": "_zero_reward",
         "drem": "compute_drem_reward",
+        "engineered": "compute_engineered_reward",
     }
     SUPPORTED_REWARD_MODES = tuple(REWARD_FUNCTIONS)
 
@@ -106,6 +107,7 @@ class InsertionEnv(BaseEnv):
         reconfiguration_freq: Optional[int] = None,
         reward_mode: Optional[str] = None,
         drem_checkpoint: Optional[str] = None,
+        engineered_kappa: float = 10.0,
         **kwargs,
     ):
         self.clearance = self._check_clearance(self.default_clearance if clearance is None else clearance)
@@ -123,6 +125,7 @@ class InsertionEnv(BaseEnv):
         self.render_style = render_style
         self.ft_history = int(ft_history)
         self.drem_checkpoint = drem_checkpoint
+        self.engineered_kappa = float(engineered_kappa)  # 1/m, for reward_mode="engineered"
         self._drem = None
         # Rebuilding the scene costs 160-300 ms on this CPU; colours and poses change without it.
         if reconfiguration_freq is None:
@@ -424,6 +427,15 @@ class InsertionEnv(BaseEnv):
         batch = {key: images[uid] for key, uid in CAMERA_OF.items() if uid in images}
         batch["ft"] = self.ft.buffer
         return self._drem(batch)
+
+    def compute_engineered_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        """The paper's hand-crafted ``-exp(kappa d)``, d the tip's pose distance to the fully-inserted pose."""
+        from drem_maniskill.baselines.engineered import engineered_reward, pose_distance
+
+        # Goal in the socket frame: on the axis at the bottom of the hole, axes aligned.
+        goal = torch.tensor([[0.0, 0.0, -self.hole_depth]], device=self.device)
+        rot_error = torch.sqrt(info["tilt_error"] ** 2 + info["yaw_error"] ** 2)
+        return engineered_reward(pose_distance(info["tip_in_socket"], goal, rot_error), self.engineered_kappa)
 
     def compute_sparse_reward(self, obs: Any, action: torch.Tensor, info: dict):
         """1 on success, else 0."""
