@@ -10,8 +10,18 @@ See docs/baselines.md.
 """
 
 from drem_maniskill.baselines.engineered import DEFAULT_KAPPA, ROT_WEIGHT, engineered_reward, pose_distance
+from drem_maniskill.baselines.vice import (
+    VICEClassifier,
+    VICEConfig,
+    VICERewardWrapper,
+    collect_goal_examples,
+    goal_examples_from_h5,
+)
 
 # Names a trainer can offer for "the reward"; all but "vice" are env reward modes.
 BASELINE_REWARDS = ("sparse", "engineered", "vice")
 
-__all__ = ["BASELINE_REWARDS", "DEFAULT_KAPPA", "ROT_WEIGHT", "engineered_reward", "pose_distance"]
+__all__ = [
+    "BASELINE_REWARDS", "DEFAULT_KAPPA", "ROT_WEIGHT", "engineered_reward", "pose_distance",
+    "VICEClassifier", "VICEConfig", "VICERewardWrapper", "collect_goal_examples", "goal_examples_from_h5",
+]
