@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Optional
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from drem_maniskill.drem.checkpoint import CheckpointError, check_compatible, load_checkpoint
@@ -20,6 +21,199 @@ from drem_maniskill.drem.model import CAMERA_OF, DREMModel, ModelConfig, cosine_
 # rewards/ sits beside the package in a checkout (editable install); a wheel installs it as
 # data files under <prefix>/share/drem-maniskill/rewards (pyproject's data-files).
 REWARDS_DIRS = (Path(__file__).resolve().parents[2] / "rewards", Path(sys.prefix) / "share" / "drem-maniskill" / "rewards")
+
+
+class FastEncoder:
+    """The reward's encoder ``h(s)`` rearranged for speed; same weights, same function.
+
+    Built from a :class:`DREMModel` at load (``DREMReward`` rebuilds it when its weights change).
+    At a handful of envs the encoder's cost is per-op overhead, so it runs fewer, larger ops:
+
+    - images stay as the env gives them (``[B, H, W, 3]`` uint8, channels last); a downscale by
+      an integer factor ``f`` to the model's size is a sum over ``f x f`` blocks (what area
+      interpolation computes), and ``1 / (255 f^2)`` is one multiply;
+    - every camera goes through its CNN in the same op, the cameras stacked on a leading dim:
+      a stride-2 4x4 conv with padding 1 is a space-to-depth of the padded map and one batched
+      matmul (``bmm``) whose four 2x2 output blocks are summed; the last, tiny conv layers are
+      dense matrices (the conv applied to an identity basis);
+    - the causal F/T convs are evaluated only at the time steps the newest output depends on;
+    - the linear layers with no nonlinearity between them (image ``fc``, the last F/T conv,
+      ``fusion[0]``) are one matrix;
+    - the unit goal embedding and the normaliser ``d(h(s_0), h(s_G))`` are precomputed.
+
+    Matches ``model.encode(model.prepare(batch))`` to float rounding (tests/test_reward_speed_paths.py).
+    """
+
+    DENSE_MAX = 600_000  # conv layers with in x out sizes up to this become one dense matrix
+
+    def __init__(self, model: DREMModel):
+        cfg = model.config
+        self.cameras = cfg.cameras
+        self.size = cfg.image_size
+        self.has_ft = "ft" in cfg.modalities
+        self.slope = 0.1
+        with torch.no_grad():
+            self.layers = self._image_layers(model) if self.cameras else []
+            self.ft_layers, ft_out_times = self._ft_layers(model) if "ft" in cfg.modalities else ([], 0)
+            self.ft_scale = 1.0 / float(model.ft_scale)
+            # fusion[0] o (per-camera fc, last F/T conv): one linear map of the concatenation.
+            f0 = model.fusion[0]
+            weights, bias, off = [], f0.bias.detach().clone(), 0
+            side = self.size // 2 ** len(cfg.channels)
+            for c in self.cameras:
+                fc = model.image_encoders[c].fc
+                w0 = f0.weight[:, off : off + fc.out_features]
+                off += fc.out_features
+                # fc reads the conv output flattened as (C, h, w); here it is (h, w, C).
+                w_fc = fc.weight.view(fc.out_features, -1, side, side).permute(0, 2, 3, 1).reshape(fc.out_features, -1)
+                weights.append(w0 @ w_fc)
+                bias += w0 @ fc.bias
+            if "ft" in cfg.modalities:
+                last = model.ft_encoder.net[-1]
+                w0 = f0.weight[:, off : off + last.out_channels]
+                taps = ft_out_times  # which taps of the last conv see real inputs (the other reads padding)
+                weights.append(torch.cat([w0 @ last.weight[:, :, k] for k in taps], dim=1))
+                bias += w0 @ last.bias
+            self.fused_w = torch.cat(weights, dim=1).t().contiguous()
+            self.fused_b = bias
+            self.out_w, self.out_b = model.fusion[2].weight.t().contiguous(), model.fusion[2].bias.clone()
+
+    # --- construction ---
+
+    def _image_layers(self, model: DREMModel) -> list:
+        convs = [[m for m in model.image_encoders[c].conv if isinstance(m, nn.Conv2d)] for c in self.cameras]
+        layers, side = [], self.size
+        for i in range(len(convs[0])):
+            cin, cout = convs[0][i].in_channels, convs[0][i].out_channels
+            half = side // 2
+            n_in = side * side * cin
+            if n_in * half * half * cout <= self.DENSE_MAX:
+                # The conv as a dense map between channels-last flattened maps.
+                eye = torch.eye(n_in, dtype=convs[0][i].weight.dtype, device=convs[0][i].weight.device)
+                eye = eye.view(n_in, side, side, cin).permute(0, 3, 1, 2)
+                mats = [F.conv2d(eye, cv[i].weight, None, 2, 1).permute(0, 2, 3, 1).reshape(n_in, -1) for cv in convs]
+                bias = [cv[i].bias.repeat(half * half) for cv in convs]
+                layers.append(("dense", torch.stack(mats).contiguous(), torch.stack(bias)[:, None, :]))
+            else:
+                # weight[o, i, 2a + p, 2b + q]: rows (p, q, i) of the space-to-depth input, cols (a, b, o).
+                mats = [
+                    cv[i].weight.view(cout, cin, 2, 2, 2, 2).permute(3, 5, 1, 2, 4, 0).reshape(4 * cin, 4 * cout) for cv in convs
+                ]
+                bias = [cv[i].bias for cv in convs]
+                layers.append(("s2d", torch.stack(mats).contiguous(), torch.stack(bias)[:, None, None, None, :]))
+            side = half
+        return layers
+
+    def _ft_layers(self, model: DREMModel):
+        """Gather plans of the causal convs, restricted to what the newest step's output reads."""
+        convs = [m for m in model.ft_encoder.net if isinstance(m, nn.Conv1d)]
+        if any(cv.kernel_size != (2,) for cv in convs):
+            raise ValueError("FastEncoder expects kernel-2 causal F/T convs")
+        T = model.config.ft_history
+        need = [[T - 1]]  # need[l]: times of layer l's output used above (l = len(convs) - 1 is the last)
+        for cv in reversed(convs):
+            d = cv.dilation[0]
+            below = sorted({u for t in need[0] for u in (t - d, t) if u >= 0})
+            need.insert(0, below)
+        # need[0]: input times; need[l + 1]: output times of conv l.
+        plans = []
+        for l, cv in enumerate(convs[:-1]):
+            src, d = need[l], cv.dilation[0]
+            prev = [src.index(t - d) if t - d >= 0 else len(src) for t in need[l + 1]]
+            cur = [src.index(t) for t in need[l + 1]]
+            pairs = len(src) == 2 * len(cur) and prev == list(range(0, len(src), 2)) and cur == [p + 1 for p in prev]
+            w = cv.weight.permute(0, 2, 1).reshape(cv.out_channels, -1).t().contiguous()  # rows (tap, c_in)
+            plans.append((pairs, torch.tensor(prev), torch.tensor(cur), w, cv.bias.detach()))
+        self.ft_input_times = torch.tensor(need[0])
+        self.ft_input_all = need[0] == list(range(T))
+        # The last conv at T - 1: its tap 0 reads t - d (padding when negative), tap 1 reads t.
+        last, t = convs[-1], T - 1
+        src = need[-2]
+        self.ft_last_idx = torch.tensor(([src.index(t - last.dilation[0])] if t - last.dilation[0] >= 0 else []) + [src.index(t)])
+        self.ft_last_all = self.ft_last_idx.tolist() == list(range(len(src)))
+        taps = ([0] if t - last.dilation[0] >= 0 else []) + [1]
+        return plans, taps
+
+    def to(self, device) -> "FastEncoder":
+        for k, v in vars(self).items():
+            if isinstance(v, torch.Tensor):
+                setattr(self, k, v.to(device))
+            elif k in ("layers", "ft_layers"):
+                setattr(self, k, [tuple(x.to(device) if isinstance(x, torch.Tensor) else x for x in item) for item in v])
+        return self
+
+    # --- inference ---
+
+    def images(self, batch: dict) -> Optional[torch.Tensor]:
+        """Camera images stacked ``[K, B, S, S, 3]`` floats in [0, 1], or None for other inputs."""
+        imgs = [batch[c] for c in self.cameras]
+        first = imgs[0]
+        if first.dim() != 4 or first.shape[-1] != 3 or first.dtype != torch.uint8:
+            return None
+        h, w = first.shape[1:3]
+        if h != w or h % self.size or any(x.shape != first.shape for x in imgs):
+            return None
+        f = h // self.size
+        x = torch.stack(imgs).float() if len(imgs) > 1 else first[None].float()
+        K, B = x.shape[:2]
+        if f == 2:  # two adds of strided views: much cheaper than a reduction over a 6-d view
+            x = x.view(K, B, self.size, 2, w, 3)
+            x = x[:, :, :, 0] + x[:, :, :, 1]
+            x = x.view(K, B, self.size, self.size, 6)
+            x = x[..., :3] + x[..., 3:]
+        elif f > 2:
+            x = x.view(K, B, self.size, f, self.size, f, 3).sum((3, 5))
+        return x.mul_(1.0 / (255.0 * f * f))
+
+    def _s2d_conv(self, x, w, b):
+        K, B, H, W, C = x.shape
+        x = F.pad(x, (0, 0, 1, 1, 1, 1))
+        h2, w2 = H // 2 + 1, W // 2 + 1
+        x = x.view(K, B, h2, 2, w2, 2, C).permute(0, 1, 2, 4, 3, 5, 6).reshape(K, B * h2 * w2, 4 * C)
+        y = torch.bmm(x, w).view(K, B, h2, w2, w.shape[-1])
+        co = w.shape[-1] // 4
+        y = y[:, :, :-1, :-1, :co] + y[:, :, :-1, 1:, co : 2 * co] + y[:, :, 1:, :-1, 2 * co : 3 * co] + y[:, :, 1:, 1:, 3 * co :]
+        return F.leaky_relu(y.add_(b), self.slope)
+
+    def encode_images(self, x: torch.Tensor) -> torch.Tensor:
+        """``[K, B, S, S, 3]`` in [0, 1] -> conv features ``[B, K * D]``, channels last per camera."""
+        K, B = x.shape[:2]
+        for kind, w, b in self.layers:
+            if kind == "s2d":
+                x = self._s2d_conv(x, w, b)
+            else:
+                x = F.leaky_relu(torch.baddbmm(b, x.reshape(K, B, -1), w), self.slope)
+        return x.reshape(K, B, -1).transpose(0, 1).reshape(B, -1)
+
+    def encode_ft(self, ft: torch.Tensor) -> torch.Tensor:
+        """``[B, T, 6]`` raw F/T -> the inputs of the last causal conv at the newest step, ``[B, n * C]``."""
+        B = ft.shape[0]
+        x = ft if self.ft_input_all else ft[:, self.ft_input_times.to(ft.device)]
+        x = x.float() * self.ft_scale
+        for pairs, prev, cur, w, b in self.ft_layers:
+            if pairs:
+                x = x.reshape(B, -1, 2 * x.shape[-1])
+            else:
+                x = torch.cat([x, x.new_zeros(B, 1, x.shape[-1])], dim=1)
+                x = torch.cat([x[:, prev], x[:, cur]], dim=-1)
+            x = F.leaky_relu(torch.matmul(x, w).add_(b), self.slope)
+        if not self.ft_last_all:
+            x = x[:, self.ft_last_idx]
+        return x.reshape(B, -1)
+
+    def encode(self, batch: dict) -> Optional[torch.Tensor]:
+        """Latent ``h(s)`` ``[B, latent]`` of raw inputs, or None when they need the general path."""
+        parts = []
+        if self.cameras:
+            x = self.images(batch)
+            if x is None:
+                return None
+            parts.append(self.encode_images(x))
+        if self.has_ft:
+            parts.append(self.encode_ft(batch["ft"]))
+        z = torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
+        z = F.leaky_relu(torch.addmm(self.fused_b, z, self.fused_w), self.slope)
+        return torch.addmm(self.out_b, z, self.out_w)
 
 
 def default_checkpoint(env_id: str, image_only: bool = False) -> Path:
@@ -81,9 +275,41 @@ class DREMReward(nn.Module):
             batch["ft"] = obs["extra"]["ft"]
         return batch
 
+    # Batches up to this size take the fast encoder; larger ones the model's convs (oneDNN),
+    # which win once the work per op outweighs the per-op overhead (measured on 2 CPU cores).
+    FAST_MAX_BATCH = 8
+
+    @staticmethod
+    def _batch_size(batch: dict) -> int:
+        return next(iter(batch.values())).shape[0]
+
+    def _apply(self, fn, *args, **kwargs):
+        # .to() / .cuda() / .double() replace the tensors: the fast encoder is rebuilt from them.
+        self._fast_tensors = None
+        return super()._apply(fn, *args, **kwargs)
+
+    def _fast(self) -> FastEncoder:
+        """The fast encoder of the current weights (rebuilt after ``.to()``, ``load_state_dict`` or edits)."""
+        tensors = getattr(self, "_fast_tensors", None)
+        if tensors is None:
+            tensors = self._fast_tensors = (*self.model.parameters(), *self.model.buffers(), self.h_start, self.h_goal)
+            self._fast_key = None
+        # In-place changes (load_state_dict, optimiser steps, edits) bump a tensor's version;
+        # moving the model's own tensors (``reward.model.to(...)``) changes their storage.
+        key = [(t._version, t.data_ptr()) for t in tensors]
+        if self._fast_key != key:
+            self._fast_encoder = FastEncoder(self.model)
+            with torch.no_grad():
+                # R = 1 - (1 - <h_bar, h_bar_G>) / d(h_0, h_G) = a + <h_bar, h_bar_G / d(h_0, h_G)>
+                scale = cosine_distance(self.h_start[None], self.h_goal[None]).clamp(min=1e-6)[0]
+                self._goal_unit = F.normalize(self.h_goal, dim=-1) / scale
+                self._offset = 1.0 - 1.0 / scale
+            self._fast_key = key
+        return self._fast_encoder
+
     @torch.no_grad()
-    def embed(self, batch: dict) -> torch.Tensor:
-        """Latent ``h(s)`` ``[B, 128]`` of raw inputs (uint8 images of any size, F/T)."""
+    def embed_reference(self, batch: dict) -> torch.Tensor:
+        """``h(s)`` by the straightforward path, ``model.encode(model.prepare(batch))``."""
         inputs = self.model.prepare(batch)
         first = next(iter(inputs.values()))
         # oneDNN's per-call set-up dominates for a handful of samples on the CPU (measured:
@@ -93,9 +319,23 @@ class DREMReward(nn.Module):
             return self.model.encode(inputs)
 
     @torch.no_grad()
+    def embed(self, batch: dict) -> torch.Tensor:
+        """Latent ``h(s)`` ``[B, 128]`` of raw inputs (uint8 images of any size, F/T)."""
+        fast = self._fast()
+        h = fast.encode(batch) if self._batch_size(batch) < self.FAST_MAX_BATCH else None
+        return self.embed_reference(batch) if h is None else h
+
+    @torch.no_grad()
     def forward(self, batch: dict) -> torch.Tensor:
         """``R(s)`` ``[B]`` of raw inputs."""
         h = self.embed(batch)
+        # 1 - d(h, h_G) / d(h_0, h_G) with the unit goal and the normaliser precomputed.
+        return torch.addmv(self._offset, F.normalize(h, dim=-1), self._goal_unit)
+
+    @torch.no_grad()
+    def forward_reference(self, batch: dict) -> torch.Tensor:
+        """``R(s)`` by the straightforward path (Eq. 2 as written), for tests and comparisons."""
+        h = self.embed_reference(batch)
         scale = cosine_distance(self.h_start[None], self.h_goal[None]).clamp(min=1e-6)
         return 1.0 - cosine_distance(h, self.h_goal[None]) / scale
 
