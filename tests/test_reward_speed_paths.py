@@ -1,0 +1,112 @@
+"""The reward's fast encoder gives what the straightforward ``model.encode(model.prepare(...))`` gives."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from drem_maniskill.drem.model import DREMModel, ModelConfig
+from drem_maniskill.drem.reward import DREMReward, default_checkpoint
+
+ATOL = 1e-4
+
+
+def _random_batch(batch: int, px: int, seed: int, cameras=("fixed", "wrist"), ft_history: int = 8) -> dict:
+    gen = torch.Generator().manual_seed(seed)
+    out = {c: torch.randint(0, 256, (batch, px, px, 3), dtype=torch.uint8, generator=gen) for c in cameras}
+    out["ft"] = torch.randn(batch, ft_history, 6, generator=gen) * 20
+    return out
+
+
+def _random_reward(seed: int = 0, **config) -> DREMReward:
+    torch.manual_seed(seed)
+    model = DREMModel(ModelConfig(**config))
+    weights = {f"model.{k}": v for k, v in model.state_dict().items()}
+    weights["h_start"], weights["h_goal"] = torch.randn(128), torch.randn(128)
+    return DREMReward({"model": model.config.to_dict()}, weights)
+
+
+@pytest.fixture(scope="module", params=["PegInHole-v1", "USBInsertion-v1"])
+def shipped(request):
+    return DREMReward.from_checkpoint(str(default_checkpoint(request.param)))
+
+
+@pytest.mark.parametrize("batch", [1, 8])
+@pytest.mark.parametrize("px", [128, 64])
+def test_fast_path_matches_model_encode_on_shipped_checkpoints(shipped, batch, px):
+    inputs = _random_batch(batch, px, seed=batch * 1000 + px)
+    with torch.no_grad():
+        straight = shipped.model.encode(shipped.model.prepare(inputs))
+        fast = shipped._fast().encode(inputs)  # the fast encoder, whatever the batch size
+    torch.testing.assert_close(fast, straight, atol=ATOL, rtol=1e-4)
+    reward = shipped(inputs)
+    torch.testing.assert_close(reward, shipped.forward_reference(inputs), atol=ATOL, rtol=0)
+    assert reward.shape == (batch,) and not reward.requires_grad
+    reward[0] = 0.0  # an ordinary tensor, not an inference-mode one: callers may edit it
+
+
+def test_128_px_images_are_area_downscaled_to_the_model_size(shipped):
+    assert shipped.model.config.image_size == 64
+    inputs = _random_batch(2, 128, seed=5)
+    # What prepare documents: area interpolation of the [0, 1] floats to 64 px.
+    small = {
+        c: F.interpolate(inputs[c].permute(0, 3, 1, 2).float() / 255.0, size=(64, 64), mode="area") for c in ("fixed", "wrist")
+    }
+    small["ft"] = inputs["ft"] / shipped.model.ft_scale
+    with torch.no_grad():
+        expected = shipped.model.encode(small)
+    torch.testing.assert_close(shipped.embed(inputs), expected, atol=ATOL, rtol=1e-4)
+    # A 128 px image made of 2x2 copies of a 64 px one gives the 64 px image's reward.
+    base = _random_batch(2, 64, seed=6)
+    blown = {c: base[c].repeat_interleave(2, 1).repeat_interleave(2, 2) for c in ("fixed", "wrist")}
+    blown["ft"] = base["ft"]
+    torch.testing.assert_close(shipped(blown), shipped(base), atol=ATOL, rtol=0)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        dict(image_size=128),  # 128 px model: a 2x2 last map, fc weights reordered
+        dict(image_size=64, modalities=("fixed", "ft"), ft_history=16),  # one camera, a longer F/T history
+        dict(image_size=64, modalities=("fixed", "wrist"), ft_history=4),  # the paper's "Image learned"
+        dict(image_size=64, modalities=("wrist", "ft"), ft_history=12),  # history not a power of two
+    ],
+)
+@pytest.mark.parametrize("batch", [1, 8])
+def test_fast_path_matches_model_encode_for_other_configs(config, batch):
+    reward = _random_reward(**config)
+    cfg = reward.model.config
+    for px in (cfg.image_size, 2 * cfg.image_size, 4 * cfg.image_size):
+        inputs = _random_batch(batch, px, seed=px + batch, cameras=cfg.cameras, ft_history=cfg.ft_history)
+        with torch.no_grad():
+            straight = reward.model.encode(reward.model.prepare(inputs))
+            fast = reward._fast().encode(inputs)
+        torch.testing.assert_close(fast, straight, atol=ATOL, rtol=1e-4)
+        torch.testing.assert_close(reward(inputs), reward.forward_reference(inputs), atol=ATOL, rtol=0)
+
+
+def test_inputs_the_fast_path_does_not_take_use_the_model(shipped):
+    # 96 px (no integer factor), 32 px (upsampling) and float images go through model.prepare.
+    for px in (96, 32):
+        inputs = _random_batch(1, px, seed=px)
+        assert shipped._fast().encode(inputs) is None
+        torch.testing.assert_close(shipped(inputs), shipped.forward_reference(inputs), atol=ATOL, rtol=0)
+    inputs = _random_batch(1, 64, seed=1)
+    floats = {c: inputs[c].float() / 255.0 for c in ("fixed", "wrist")} | {"ft": inputs["ft"]}
+    assert shipped._fast().encode(floats) is None
+    torch.testing.assert_close(shipped(floats), shipped(inputs), atol=ATOL, rtol=0)
+
+
+def test_fast_path_follows_new_weights():
+    reward = _random_reward(seed=1, image_size=64)
+    inputs = _random_batch(1, 128, seed=2)
+    before = reward(inputs)
+    other = _random_reward(seed=2, image_size=64)
+    reward.load_state_dict(other.state_dict())
+    torch.testing.assert_close(reward(inputs), other.forward_reference(inputs), atol=ATOL, rtol=0)
+    assert not torch.allclose(reward(inputs), before)
+    with torch.no_grad():
+        reward.model.fusion[2].bias.add_(1.0)
+        reward.h_goal.mul_(-1.0)
+    torch.testing.assert_close(reward(inputs), reward.forward_reference(inputs), atol=ATOL, rtol=0)
