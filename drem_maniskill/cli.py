@@ -26,7 +26,12 @@ def _cmd_record_expert(args) -> None:
     from drem_maniskill.recording import record_expert
 
     seeds = range(args.seed, args.seed + args.episodes)
-    result = record_expert(args.task, args.out, seeds=seeds, obs_mode=args.obs_mode, name=args.name, save_video=args.video)
+    try:
+        env_kwargs = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as err:
+        raise SystemExit(f"--env-kwargs must be a JSON object, e.g. '{{\"sim_backend\": \"cpu\"}}': {err}")
+    result = record_expert(args.task, args.out, seeds=seeds, obs_mode=args.obs_mode, name=args.name, save_video=args.video,
+                           env_kwargs=env_kwargs)
     print(json.dumps({"trajectory": result.h5_path, "metadata": result.json_path, "success_rate": result.success_rate,
                       "lengths": result.lengths}, indent=2))
 
@@ -52,13 +57,13 @@ def _cmd_sample(args) -> None:
 
 def _cmd_train_reward(args) -> None:
     from drem_maniskill.drem.model import ModelConfig
-    from drem_maniskill.drem.train import TrainConfig, train_reward
+    from drem_maniskill.drem.train import TrainConfig, dataset_modalities, train_reward
 
     config = TrainConfig.preset(args.preset)
-    model = config.model
-    if args.modalities or args.image_size:
-        model = ModelConfig(**{**model.to_dict(), **({"modalities": tuple(args.modalities)} if args.modalities else {}),
-                               **({"image_size": args.image_size} if args.image_size else {})})
+    # Default: every modality the tree holds (a stock ManiSkill task has no F/T sensor).
+    modalities = tuple(args.modalities) if args.modalities else dataset_modalities(args.dataset)
+    model = ModelConfig(**{**config.model.to_dict(), "modalities": modalities,
+                           **({"image_size": args.image_size} if args.image_size else {})})
     overrides = {k: v for k, v in dict(iterations=args.iterations, pairs_per_batch=args.pairs, seed=args.seed,
                                        threads=args.threads).items() if v is not None}
     config = TrainConfig(**{**{f: getattr(config, f) for f in config.__dataclass_fields__}, **overrides, "model": model})
@@ -93,13 +98,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("record-expert", help="record scripted-expert episodes in ManiSkill's .h5/.json format")
-    p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
+    p.add_argument("--task", default="PegInHole-v1",
+                   help="env id: ours, PegInsertionSide-v1 or PlugCharger-v1 (default: %(default)s)")
     p.add_argument("--out", default="outputs/expert", help="output folder (default: %(default)s)")
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="first episode seed (default: %(default)s)")
     p.add_argument("--obs-mode", default="rgb", help="observation mode to record (default: %(default)s)")
     p.add_argument("--name", default="expert", help="file name stem (default: %(default)s)")
     p.add_argument("--video", action="store_true", help="also write an mp4 per episode")
+    p.add_argument("--env-kwargs", default="{}",
+                   help="JSON of extra gym.make kwargs; ManiSkill's own tasks default to control_mode pd_ee_delta_pose")
     p.set_defaults(func=_cmd_record_expert)
 
     p = sub.add_parser("scripted-success", help="success rate of a scripted policy over many seeds")
@@ -136,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="outputs/reward", help="output folder: drem.pt, tb/, train_state.pt (resume)")
     p.add_argument("--preset", default="paper", choices=["paper", "quick", "tiny"],
                    help="paper: 20k iterations at 128 px; quick/tiny: CPU-sized")
-    p.add_argument("--modalities", nargs="+", choices=["fixed", "wrist", "ft"], help="inputs (default: all three)")
+    p.add_argument("--modalities", nargs="+", choices=["fixed", "wrist", "ft"], help="inputs (default: all the dataset holds)")
     p.add_argument("--image-size", type=int, help="model input size (multiple of 64)")
     p.add_argument("--iterations", type=int)
     p.add_argument("--pairs", type=int, help="pairs per batch (half neighbours)")

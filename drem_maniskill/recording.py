@@ -37,31 +37,44 @@ class RecordResult:
         return sum(self.success) / max(len(self.success), 1)
 
 
+def _is_ours(env_id: str) -> bool:
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    from drem_maniskill.envs.insertion_base import InsertionEnv
+
+    spec = REGISTERED_ENVS.get(env_id.split(":")[-1])
+    return spec is not None and issubclass(spec.cls, InsertionEnv)
+
+
 def record_expert(
     env_id: str,
     out_dir: str,
     seeds: Sequence[int] = (0,),
     obs_mode: str = "rgb",
     name: str = "expert",
-    policy: str = "expert",
+    policy="expert",
     save_video: bool = False,
     max_steps: Optional[int] = None,
     env_kwargs: Optional[dict] = None,
 ) -> RecordResult:
-    """Roll out a scripted policy on ``seeds`` and save the episodes with ``RecordEpisode``."""
+    """Roll out a scripted policy (a name, or a callable ``obs -> action``) on ``seeds``; save with ``RecordEpisode``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env = gym.make(env_id, obs_mode=obs_mode, render_mode="rgb_array" if save_video else None, **(env_kwargs or {}))
+    env_kwargs = dict(env_kwargs or {})
+    # The scripted experts of ManiSkill's own tasks command end-effector deltas, not their default.
+    if not _is_ours(env_id) and "control_mode" not in env_kwargs:
+        env_kwargs["control_mode"] = "pd_ee_delta_pose"
+    env = gym.make(env_id, obs_mode=obs_mode, render_mode="rgb_array" if save_video else None, **env_kwargs)
     # info_on_video crashes with numpy 2.4 in ManiSkill 3.0.1; keep it off.
     env = RecordEpisode(
         env, str(out), trajectory_name=name, save_video=save_video, info_on_video=False,
         save_on_reset=False, record_env_state=True, video_fps=5,
     )
-    pi = get_policy(policy, env, seed=int(seeds[0]) if len(seeds) else 0)
+    pi = policy if callable(policy) else get_policy(policy, env, seed=int(seeds[0]) if len(seeds) else 0)
     horizon = max_steps or env.unwrapped.spec.max_episode_steps or 50
     result = RecordResult(h5_path=str(out / f"{name}.h5"), json_path=str(out / f"{name}.json"))
     try:
-        for seed in tqdm(list(seeds), desc=f"record {policy} on {env_id}", unit="episode", disable=None):
+        for seed in tqdm(list(seeds), desc=f"record {getattr(policy, '__name__', policy)} on {env_id}", unit="episode", disable=None):
             obs, _ = env.reset(seed=int(seed))
             for t in range(horizon):
                 obs, _, terminated, truncated, info = env.step(pi(obs))

@@ -206,12 +206,41 @@ _POLICIES: dict[str, type[ScriptedPolicy]] = {
 
 
 def get_policy(name: str, env, seed: int = 0) -> Callable:
-    """A batched scripted policy ``policy(obs) -> action [num_envs, 6]`` for ``env``."""
+    """A batched scripted policy ``policy(obs) -> action [num_envs, action_dim]`` for ``env``.
+
+    On ManiSkill's own tasks (``PegInsertionSide-v1``, ``PlugCharger-v1``) ``expert`` is the
+    scripted expert of ``drem_maniskill.stock_experts`` and ``random`` uniform random actions.
+    """
+    from drem_maniskill.envs.insertion_base import InsertionEnv
+
+    if not isinstance(env.unwrapped, InsertionEnv):
+        if name == "random":
+            return _UniformRandom(env, seed)
+        if name in ("expert", "direct_success"):
+            from drem_maniskill.stock_experts import get_stock_expert
+
+            return get_stock_expert(env, seed=seed)
+        raise ValueError(f"scripted policy {name!r} exists only for our insertion tasks; on {env.unwrapped.spec.id} use expert or random")
     if name not in _POLICIES:
         raise ValueError(f"unknown scripted policy {name!r}; choose one of {list(POLICY_NAMES)}")
     policy = _POLICIES[name](env, seed=seed)
     policy._on_reset(torch.ones(policy.n, dtype=torch.bool, device=policy.device))
     return policy
+
+
+class _UniformRandom:
+    """Uniform random actions in the env's (normalised) action space, seeded."""
+
+    def __init__(self, env, seed: int = 0):
+        space = env.unwrapped.single_action_space
+        self.low = torch.as_tensor(space.low, dtype=torch.float32)
+        self.high = torch.as_tensor(space.high, dtype=torch.float32)
+        self.n, self.device = env.unwrapped.num_envs, env.unwrapped.device
+        self.generator = torch.Generator().manual_seed(int(seed))
+
+    def __call__(self, obs) -> torch.Tensor:
+        u = torch.rand(self.n, len(self.low), generator=self.generator)
+        return (self.low + u * (self.high - self.low)).to(self.device)
 
 
 def success_rate(env_id: str, name: str = "expert", seeds=range(100), env_kwargs=None) -> dict:

@@ -263,13 +263,13 @@ def test_shipped_expert_demos_reach_the_goal(task):
     from drem_maniskill.drem.sampling import _broadcast, _state_at, load_expert
 
     expert = load_expert(str(Path(__file__).parents[1] / "tasks" / task / "expert.h5"))
-    assert expert.env_id == task and expert.episode_seed == 1000 and len(expert.tcp_poses) > 5
+    assert expert.env_id == task and expert.episode_seed == 1000 and expert.length > 5
     env = gym.make(task, obs_mode="state_dict")
     try:
         env.reset(seed=expert.episode_seed)
         env.unwrapped.set_state_dict(_broadcast(_state_at(expert.states, 0), 1))
         assert env.unwrapped.in_start_region().item()
-        env.unwrapped.set_state_dict(_broadcast(_state_at(expert.states, len(expert.tcp_poses) - 1), 1))
+        env.unwrapped.set_state_dict(_broadcast(_state_at(expert.states, expert.length - 1), 1))
         assert env.unwrapped.evaluate()["success"].item()
     finally:
         env.close()

@@ -9,8 +9,16 @@ closest. Sampling stops once at least ``N * delta`` seeds lie in the task's star
 fails with a clear error at ``max_depth``.
 
 The expert trajectory is read in ManiSkill's format (``RecordEpisode``'s .h5 + .json): only
-its observations (end-effector poses, and the first and last observations for the reward's
-normalisation) and its environment states (the goal state) are used, never its actions.
+its observations (the first and last ones, for the reward's normalisation) and its environment
+states (the goal state, and the end-effector poses the progress measure compares with) are
+used, never its actions.
+
+Any ManiSkill env works (``drem_maniskill.drem.adapter``): on our tasks the tree holds both
+cameras and the F/T history; on a stock task (``PegInsertionSide-v1``, ...) its cameras
+(``base_camera`` as ``fixed``, ``hand_camera`` as ``wrist``) and zeros for F/T. Where the robot
+has a gripper, the measure also compares the gripper opening with the expert's, so the tree
+opens the gripper where the expert had it open (the stock tasks start with the part on the
+table).
 
 Output: one HDF5 file (see ``DATASET_KEYS``) written to ``<out>.partial`` depth by depth and
 renamed when complete; an interrupted run resumes from the last complete depth.
@@ -45,7 +53,7 @@ class SamplerConfig:
     """Stop when at least ceil(N * delta) seeds are in the start region."""
     max_depth: int = 80
     action_scale: float = 1.0
-    """Random actions are uniform in [-action_scale, action_scale] (normalised action space)."""
+    """Random arm actions are uniform in [-action_scale, action_scale] (normalised action space); gripper ones always in [-1, 1]."""
     rotation_weight: float = 0.05
     """Metres per radian when comparing end-effector poses with the expert's."""
     seed: int = 0
@@ -53,6 +61,10 @@ class SamplerConfig:
     """Which episode of the expert file to use."""
     workers: int = 1
     """Worker processes, each with its own env (children of one seed are split among them)."""
+    gripper_weight: float = 1.0
+    """Metres per metre of finger opening when comparing with the expert (robots with a gripper)."""
+    start_radius: float = 0.03
+    """Envs without a start-region predicate: within this distance of the expert's first TCP position."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -75,17 +87,41 @@ class ExpertTrajectory:
     env_id: str
     env_kwargs: dict
     episode_seed: Optional[int]
-    goal_state: np.ndarray  # flat env state of the last step
-    tcp_poses: np.ndarray  # [T + 1, 7]
-    first_obs: dict  # fixed_rgb, wrist_rgb, ft of step 0
+    camera_map: dict  # modality -> camera uid of the recorded observations
+    first_obs: dict  # {modality}_rgb (and ft) of step 0
     last_obs: dict  # of step T
-    states: dict = field(default_factory=dict)
+    states: dict = field(default_factory=dict)  # env states, every leaf [T + 1, ...]
+
+    @property
+    def length(self) -> int:
+        """Number of recorded states (steps + 1)."""
+        return len(_first_leaf(self.states))
+
+
+def _first_leaf(tree: dict):
+    value = next(iter(tree.values()))
+    return _first_leaf(value) if isinstance(value, dict) else value
 
 
 def _read_tree(group) -> dict:
     out = {}
     for key, value in group.items():
         out[key] = _read_tree(value) if isinstance(value, h5py.Group) else value[()]
+    return out
+
+
+def _cameras_in(sensor_data) -> dict:
+    """Modality -> camera uid among recorded cameras (same rule as ``adapter.camera_map_for``)."""
+    from drem_maniskill.drem.adapter import OUR_CAMERAS, WRIST_CAMERA_UIDS
+
+    uids = [u for u in sensor_data.keys() if "rgb" in sensor_data[u]]
+    if all(u in uids for u in OUR_CAMERAS.values()):
+        return dict(OUR_CAMERAS)
+    fixed = [u for u in uids if u not in WRIST_CAMERA_UIDS]
+    wrist = [u for u in uids if u in WRIST_CAMERA_UIDS]
+    out = {"fixed": fixed[0]} if fixed else {}
+    if wrist:
+        out["wrist" if fixed else "fixed"] = wrist[0]
     return out
 
 
@@ -97,7 +133,10 @@ def load_expert(h5_path: str, episode: int = 0) -> ExpertTrajectory:
         raise FileNotFoundError(f"expert trajectory {h5_path} not found; record one with `drem-maniskill record-expert`")
     if not json_path.exists():
         raise FileNotFoundError(f"{json_path} (the metadata RecordEpisode writes beside {h5_path.name}) not found")
-    meta = json.loads(json_path.read_text())
+    try:
+        meta = json.loads(json_path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{json_path} is not valid JSON ({err}); re-record the expert") from err
     episodes = meta.get("episodes", [])
     if episode >= len(episodes):
         raise ValueError(f"{h5_path} has {len(episodes)} episodes; episode {episode} does not exist")
@@ -107,20 +146,19 @@ def load_expert(h5_path: str, episode: int = 0) -> ExpertTrajectory:
             traj = f[f"traj_{ep.get('episode_id', episode)}"]
             if "env_states" not in traj:
                 raise ValueError(f"{h5_path} has no env_states; record with RecordEpisode(record_env_state=True)")
-            obs = traj["obs"]
-            missing = [k for k in ("sensor_data/fixed_camera/rgb", "sensor_data/wrist_camera/rgb", "extra/tcp_pose") if k not in obs]
-            if missing:
+            obs = traj["obs"] if "obs" in traj else {}
+            cams = _cameras_in(obs["sensor_data"]) if "sensor_data" in obs else {}
+            if not cams:
                 raise ValueError(
-                    f"{h5_path} lacks observations {missing}: record the expert with obs_mode='rgb' "
+                    f"{h5_path} has no camera images in its observations: record the expert with obs_mode='rgb' "
                     "(drem-maniskill record-expert does)"
                 )
             states = _read_tree(traj["env_states"])
-            cams = {c: obs[f"sensor_data/{c}_camera/rgb"] for c in ("fixed", "wrist")}
-            ft = obs["extra/ft"][()] if "extra/ft" in obs else None
-            tcp = obs["extra/tcp_pose"][()]
+            images = {m: obs[f"sensor_data/{uid}/rgb"] for m, uid in cams.items()}
+            ft = obs["extra/ft"][()] if "extra" in obs and "ft" in obs["extra"] else None
 
             def pick(i):
-                out = {f"{c}_rgb": cams[c][i] for c in cams}
+                out = {f"{m}_rgb": images[m][i] for m in images}
                 if ft is not None:
                     out["ft"] = ft[i]
                 return out
@@ -131,7 +169,7 @@ def load_expert(h5_path: str, episode: int = 0) -> ExpertTrajectory:
     kwargs = dict(meta["env_info"].get("env_kwargs", {}))
     return ExpertTrajectory(
         env_id=meta["env_info"]["env_id"], env_kwargs=kwargs, episode_seed=ep.get("episode_seed"),
-        goal_state=None, tcp_poses=tcp, first_obs=first, last_obs=last, states=states,
+        camera_map=cams, first_obs=first, last_obs=last, states=states,
     )
 
 
@@ -143,36 +181,68 @@ def _state_at(states: dict, index: int) -> dict:
 class ChildSampler:
     """An env that restores a seed state and applies random actions, in batches of ``num_envs``."""
 
-    def __init__(self, env_id: str, env_kwargs: dict, episode_seed: Optional[int]):
+    def __init__(self, env_id: str, env_kwargs: dict, episode_seed: Optional[int], expert_first_ee=None,
+                 start_radius: float = 0.03):
         import gymnasium as gym
 
         import drem_maniskill  # noqa: F401
+        from drem_maniskill.drem.adapter import adapter_for
 
         kwargs = {**env_kwargs, "obs_mode": "rgb", "render_mode": None}
         self.env = gym.make(env_id, **kwargs)
         self.unwrapped = self.env.unwrapped
-        # Colours and socket pose of the expert's episode come with its seed.
+        self.adapter = adapter_for(self.env)
+        # Colours and object poses of the expert's episode come with its seed.
         self.env.reset(seed=episode_seed)
         self.n = self.unwrapped.num_envs
+        self.action_dim = int(self.env.action_space.shape[-1])
+        self.expert_first_ee = expert_first_ee
+        self.start_radius = start_radius
+        # Gripper actions are absolute targets: a scaled-down range would close the gripper, so
+        # they are always drawn from the full range.
+        mapping = getattr(self.unwrapped.agent.controller, "action_mapping", {}) or {}
+        self.full_range_dims = [i for name, (a, b) in mapping.items() if "gripper" in name for i in range(a, b)]
+
+    def random_actions(self, rng: np.random.Generator, count: int, scale: float) -> np.ndarray:
+        """``count`` uniform random actions: arm dims in [-scale, scale], gripper dims in [-1, 1]."""
+        actions = rng.uniform(-scale, scale, size=(count, self.action_dim))
+        if self.full_range_dims and scale != 1.0:
+            actions[:, self.full_range_dims] = rng.uniform(-1.0, 1.0, size=(count, len(self.full_range_dims)))
+        return actions
+
+    def in_start_region(self) -> torch.Tensor:
+        """Start-region flags ``[num_envs]`` of the current states."""
+        return self.adapter.in_start_region(self.expert_first_ee, self.start_radius)
 
     def children(self, seed_state: dict, actions: np.ndarray) -> dict:
         """Apply each action from ``seed_state``; returns observations, start flags and states."""
-        out = {k: [] for k in ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "in_start_region", "state")}
-        batched = {k: v for k, v in seed_state.items()}
+        out = {k: [] for k in ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "ee", "in_start_region", "state")}
         for start in range(0, len(actions), self.n):
             chunk = torch.as_tensor(actions[start : start + self.n], dtype=torch.float32)
             k = len(chunk)
             if k < self.n:
                 chunk = torch.cat([chunk, chunk.new_zeros(self.n - k, chunk.shape[1])])
-            self.unwrapped.set_state_dict(_broadcast(batched, self.n))
+            self.adapter.set_state(_broadcast(seed_state, self.n))
             obs, *_ = self.env.step(chunk)
-            out["fixed_rgb"].append(obs["sensor_data"]["fixed_camera"]["rgb"][:k].cpu().numpy())
-            out["wrist_rgb"].append(obs["sensor_data"]["wrist_camera"]["rgb"][:k].cpu().numpy())
-            out["ft"].append(obs["extra"]["ft"][:k].cpu().numpy())
-            out["tcp_pose"].append(obs["extra"]["tcp_pose"][:k].cpu().numpy())
-            out["in_start_region"].append(self.unwrapped.in_start_region()[:k].cpu().numpy())
-            out["state"].append(self.unwrapped.get_state()[:k].cpu().numpy())
-        return {k: np.concatenate(v) for k, v in out.items()}
+            for m, image in self.adapter.images(obs).items():
+                out[f"{m}_rgb"].append(image[:k].cpu().numpy())
+            ft = self.adapter.ft()
+            out["ft"].append(ft[:k].cpu().numpy() if ft is not None else np.zeros((k, 8, 6), np.float32))
+            ee = self.adapter.ee_state()[:k].cpu().numpy()
+            out["tcp_pose"].append(ee[:, :7])
+            out["ee"].append(ee)
+            out["in_start_region"].append(self.in_start_region()[:k].cpu().numpy())
+            out["state"].append(self.adapter.flatten(self.adapter.get_state())[:k].cpu().numpy())
+        return {k: np.concatenate(v) for k, v in out.items() if v}
+
+    def expert_ee_states(self, states: dict) -> np.ndarray:
+        """End-effector states ``[T + 1, 8]`` of the expert, by restoring each recorded env state."""
+        length = len(_first_leaf(states))
+        out = []
+        for t in range(length):
+            self.adapter.set_state(_broadcast(_state_at(states, t), self.n))
+            out.append(self.adapter.ee_state()[0].cpu().numpy())
+        return np.stack(out)
 
     def close(self):
         """Close the env."""
@@ -187,29 +257,29 @@ def _broadcast(state: dict, n: int) -> dict:
 _WORKER: Optional[ChildSampler] = None
 
 
-def _worker_init(env_id, env_kwargs, episode_seed):
+def _worker_init(env_id, env_kwargs, episode_seed, expert_first_ee, start_radius):
     global _WORKER
     torch.set_num_threads(1)
-    _WORKER = ChildSampler(env_id, env_kwargs, episode_seed)
+    _WORKER = ChildSampler(env_id, env_kwargs, episode_seed, expert_first_ee, start_radius)
 
 
 def _worker_children(args):
     flat_state, actions = args
-    return _WORKER.children(_WORKER_state(flat_state), actions)
+    return _WORKER.children(_WORKER.adapter.unflatten(flat_state), actions)
 
 
-def _WORKER_state(flat):
-    template = _WORKER.unwrapped.get_state_dict()
-    from drem_maniskill.envs.insertion_base import _unflatten_like
+def pose_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_weight: float = 0.0) -> np.ndarray:
+    """Distance between end-effector states ``[.., 7]`` or ``[.., 8]`` (pose, gripper width).
 
-    return _unflatten_like(template, torch.as_tensor(flat)[None])
-
-
-def pose_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float) -> np.ndarray:
-    """Distance between raw poses ``[.., 7]``: position L2 plus weighted rotation angle."""
+    Position L2 plus the weighted rotation angle, plus the weighted gripper-width difference
+    when both carry one.
+    """
     pos = np.linalg.norm(a[..., :3] - b[..., :3], axis=-1)
-    dot = np.abs(np.sum(a[..., 3:] * b[..., 3:], axis=-1)).clip(0, 1)
-    return pos + rotation_weight * 2 * np.arccos(dot)
+    dot = np.abs(np.sum(a[..., 3:7] * b[..., 3:7], axis=-1)).clip(0, 1)
+    dist = pos + rotation_weight * 2 * np.arccos(dot)
+    if gripper_weight and a.shape[-1] > 7 and b.shape[-1] > 7:
+        dist = dist + gripper_weight * np.abs(a[..., 7] - b[..., 7])
+    return dist
 
 
 # ---------------------------------------------------------------------------- the tree
@@ -218,21 +288,32 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
     out_path = Path(out_path)
     partial = out_path.with_name(out_path.name + ".partial")
     expert = load_expert(expert_path, config.episode)
-    goal_index = len(expert.tcp_poses) - 1
-    rng = np.random.default_rng(config.seed)
+    goal_index = expert.length - 1
 
-    sampler = ChildSampler(expert.env_id, expert.env_kwargs, expert.episode_seed)
+    sampler = ChildSampler(expert.env_id, expert.env_kwargs, expert.episode_seed, start_radius=config.start_radius)
+    missing = [m for m, uid in sampler.adapter.camera_map.items() if expert.camera_map.get(m) != uid]
+    if missing:
+        sampler.close()
+        raise ValueError(
+            f"{expert_path} recorded cameras {expert.camera_map}, but {expert.env_id} samples {sampler.adapter.camera_map}; "
+            "record the expert with the same env and sensor configs"
+        )
+    # The measure compares with the expert's end-effector states, read from its env states
+    # (not its observations), so any demo with env_states works.
+    expert_ee = sampler.expert_ee_states(expert.states)
+    sampler.expert_first_ee = expert_ee[0]
+    gripper_weight = config.gripper_weight if sampler.adapter.gripper_idx else 0.0
     pool = None
     if config.workers > 1:
         import multiprocessing as mp
 
         pool = mp.get_context("spawn").Pool(
-            config.workers, initializer=_worker_init, initargs=(expert.env_id, expert.env_kwargs, expert.episode_seed)
+            config.workers, initializer=_worker_init,
+            initargs=(expert.env_id, expert.env_kwargs, expert.episode_seed, expert_ee[0], config.start_radius),
         )
     try:
-        depth, seeds, seed_nodes = _open_or_resume(partial, expert, config, sampler, goal_index)
+        depth, seeds, seed_nodes = _open_or_resume(partial, expert, expert_ee, config, sampler, goal_index)
         needed = math.ceil(config.num_seeds * config.delta)
-        # The random stream is a function of the depth, so a resumed run draws the same actions.
         bar = tqdm(total=config.max_depth, initial=depth, desc="backward sampling", unit="depth", disable=not progress)
         while True:
             in_region = int(sum(bool(s["in_start_region"]) for s in seeds))
@@ -243,12 +324,13 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
                     f"backward sampling reached max_depth={config.max_depth} with {in_region}/{len(seeds)} seeds in the "
                     f"start region (needed {needed}); raise --max-depth or --action-scale, or check the expert"
                 )
+            # The random stream is a function of the depth, so a resumed run draws the same actions.
             rng = np.random.default_rng([config.seed, depth])
             children = []
             for seed, node in zip(seeds, seed_nodes):
-                actions = rng.uniform(-config.action_scale, config.action_scale, size=(config.num_children, 6))
+                actions = sampler.random_actions(rng, config.num_children, config.action_scale)
                 if pool is None:
-                    res = sampler.children(_unflatten(sampler, seed["state"]), actions)
+                    res = sampler.children(sampler.adapter.unflatten(seed["state"]), actions)
                 else:
                     parts = np.array_split(actions, config.workers)
                     outs = pool.map(_worker_children, [(seed["state"], p) for p in parts if len(p)])
@@ -257,9 +339,9 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
                 children.append(res)
                 bar.set_postfix(children=config.num_children * len(seeds), in_start=in_region)
             merged = {k: np.concatenate([c[k] for c in children]) for k in children[0]}
-            # Expert-guided progress measure: closest end-effector pose to the expert d+1 steps back.
-            ref = expert.tcp_poses[max(goal_index - (depth + 1), 0)]
-            dist = pose_distance(merged["tcp_pose"], ref, config.rotation_weight)
+            # Expert-guided progress measure: closest end-effector state to the expert d+1 steps back.
+            ref = expert_ee[max(goal_index - (depth + 1), 0)]
+            dist = pose_distance(merged["ee"], ref, config.rotation_weight, gripper_weight)
             chosen = np.argsort(dist, kind="stable")[: config.num_seeds]
             depth += 1
             seed_nodes = _append_depth(partial, merged, depth, chosen)
@@ -278,15 +360,11 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             pool.join()
 
 
-def _unflatten(sampler: ChildSampler, flat: np.ndarray) -> dict:
-    from drem_maniskill.envs.insertion_base import _unflatten_like
-
-    return _unflatten_like(sampler.unwrapped.get_state_dict(), torch.as_tensor(flat)[None])
-
-
-def _open_or_resume(partial: Path, expert: ExpertTrajectory, config: SamplerConfig, sampler: ChildSampler, goal_index: int):
+def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarray, config: SamplerConfig,
+                    sampler: ChildSampler, goal_index: int):
     header = dict(config=asdict(config), env_id=expert.env_id, env_kwargs=expert.env_kwargs,
-                  episode_seed=expert.episode_seed, expert_length=goal_index)
+                  episode_seed=expert.episode_seed, expert_length=goal_index, camera_map=sampler.adapter.camera_map,
+                  has_ft=sampler.adapter.has_ft, action_dim=sampler.action_dim)
     if partial.exists():
         try:
             with h5py.File(partial, "r") as f:
@@ -297,17 +375,17 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, config: SamplerConf
                     nodes = [int(n) for n in g["node"][()]]
                 _truncate(partial)
                 return depth, seeds, nodes
-        except (OSError, KeyError):
+        except (OSError, KeyError, NameError):
             pass  # unreadable or from another config: start over
         partial.unlink()
     # Depth 0: the goal state, as the expert's last step recorded it.
     goal = _state_at(expert.states, goal_index)
-    sampler.unwrapped.set_state_dict(_broadcast(goal, sampler.n))
-    flat = sampler.unwrapped.get_state()[:1].cpu().numpy()
-    in_region = bool(sampler.unwrapped.in_start_region()[0])
-    root = dict(
-        fixed_rgb=expert.last_obs["fixed_rgb"][None], wrist_rgb=expert.last_obs["wrist_rgb"][None],
-        ft=expert.last_obs.get("ft", np.zeros((8, 6), np.float32))[None], tcp_pose=expert.tcp_poses[-1:],
+    sampler.adapter.set_state(_broadcast(goal, sampler.n))
+    flat = sampler.adapter.flatten(sampler.adapter.get_state())[:1].cpu().numpy()
+    in_region = bool(sampler.in_start_region()[0])
+    root = {f"{m}_rgb": expert.last_obs[f"{m}_rgb"][None] for m in expert.camera_map}
+    root.update(
+        ft=expert.last_obs.get("ft", np.zeros((8, 6), np.float32))[None], tcp_pose=expert_ee[-1:, :7],
         in_start_region=np.array([in_region]), state=flat, parent=np.array([-1]),
     )
     with h5py.File(partial, "w") as f:
@@ -317,7 +395,8 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, config: SamplerConf
             e.create_dataset(f"first/{key}", data=value)
         for key, value in expert.last_obs.items():
             e.create_dataset(f"last/{key}", data=value)
-        e.create_dataset("tcp_pose", data=expert.tcp_poses)
+        e.create_dataset("tcp_pose", data=expert_ee[:, :7].astype(np.float32))
+        e.create_dataset("ee_state", data=expert_ee.astype(np.float32))
     _append_depth(partial, root, 0, np.array([0]))
     return 0, [dict(state=flat[0], in_start_region=in_region)], [0]
 
@@ -331,8 +410,8 @@ def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray) -> lis
     n = len(data["tcp_pose"])
     is_seed = np.zeros(n, bool)
     is_seed[chosen] = True
-    rows = dict(
-        fixed_rgb=data["fixed_rgb"].astype(np.uint8), wrist_rgb=data["wrist_rgb"].astype(np.uint8),
+    rows = {k: data[k].astype(np.uint8) for k in ("fixed_rgb", "wrist_rgb") if k in data}
+    rows.update(
         ft=data["ft"].astype(np.float32), tcp_pose=data["tcp_pose"].astype(np.float32),
         depth=np.full(n, depth, np.int32), parent=data["parent"].astype(np.int64),
         in_start_region=data["in_start_region"].astype(bool), is_seed=is_seed,

@@ -64,6 +64,17 @@ class TrainConfig:
         return cls(**merged)
 
 
+def dataset_modalities(path: str) -> tuple:
+    """The modalities a progress tree holds: its cameras, and ``ft`` when the env had our sensor."""
+    try:
+        with h5py.File(path, "r") as f:
+            header = json.loads(f.attrs["header"])
+    except (OSError, KeyError):
+        return ModelConfig().modalities  # TreeDataset reports what is wrong with the file
+    cams = header.get("camera_map", dict(CAMERA_OF))
+    return tuple(m for m in ("fixed", "wrist") if m in cams) + (("ft",) if header.get("has_ft", True) else ())
+
+
 class TreeDataset:
     """The progress tree in memory: uint8 images at the model's size, F/T, depths."""
 
@@ -78,6 +89,19 @@ class TreeDataset:
             if not f.attrs.get("complete", False):
                 raise ValueError(f"{path} is an unfinished sampling run; resume it with `drem-maniskill sample`")
             self.header = json.loads(f.attrs["header"])
+            self.camera_map = self.header.get("camera_map", dict(CAMERA_OF))
+            absent = [c for c in config.cameras if c not in self.camera_map or f"{c}_rgb" not in f]
+            if absent:
+                raise ValueError(
+                    f"{path} has no {absent} camera images ({self.header.get('env_id')} gives {sorted(self.camera_map)}); "
+                    f"train with --modalities {' '.join(sorted(self.camera_map))}"
+                    + (" ft" if self.header.get("has_ft", True) else "")
+                )
+            if "ft" in config.modalities and not self.header.get("has_ft", True):
+                raise ValueError(
+                    f"{path} was sampled on {self.header.get('env_id')}, which has no wrist F/T sensor; "
+                    f"train with --modalities {' '.join(sorted(self.camera_map))}"
+                )
             self.depth = torch.as_tensor(f["depth"][()]).long()
             flags = f["in_start_region"][()]
             if not flags.any():
@@ -199,7 +223,7 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
         env_id=data.header["env_id"],
         env_kwargs=data.header.get("env_kwargs", {}),
         modalities=list(config.model.modalities),
-        camera_uids=[CAMERA_OF[c] for c in config.model.cameras],
+        camera_uids=[data.camera_map[c] for c in config.model.cameras],
         image_size=config.model.image_size,
         ft_history=config.model.ft_history,
         render_style=data.header.get("env_kwargs", {}).get("render_style", "lean"),

@@ -1,0 +1,107 @@
+"""The DREM pipeline on a stock ManiSkill task (PegInsertionSide-v1): record, sample, train, reward.
+
+The demo here is six scripted steps (a stand-in for an expert, to keep the test short); what is
+tested is the plumbing a stock task needs: its cameras (``base_camera``, ``hand_camera``), no
+F/T sensor, a 7-d action with a gripper, and states that replay a step.
+"""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import h5py
+import numpy as np
+import pytest
+import torch
+
+import drem_maniskill  # noqa: F401
+from drem_maniskill.drem.adapter import adapter_for
+
+STOCK = "PegInsertionSide-v1"
+
+
+@pytest.fixture(scope="module")
+def stock_pipeline(tmp_path_factory):
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.drem.sampling import SamplerConfig, backward_sample
+    from drem_maniskill.drem.train import TrainConfig, dataset_modalities, train_reward
+    from drem_maniskill.recording import record_expert
+
+    root = tmp_path_factory.mktemp("stock")
+    def lift(obs):  # six steps up (about 10 cm) with the gripper open: a short stand-in for an expert
+        return torch.tensor([[0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]])
+
+    rec = record_expert(STOCK, str(root / "expert"), seeds=[0], policy=lift, max_steps=6)
+    config = SamplerConfig.preset("tiny", num_children=6, max_depth=15, start_radius=0.05)
+    tree = backward_sample(rec.h5_path, str(root / "tree.h5"), config, progress=False)
+    modalities = dataset_modalities(tree)
+    train = TrainConfig.preset("tiny", iterations=6, model=ModelConfig(image_size=64, modalities=modalities))
+    checkpoint = train_reward(tree, str(root / "reward"), train, progress=False)
+    return dict(expert=rec.h5_path, tree=tree, modalities=modalities, checkpoint=checkpoint)
+
+
+@pytest.mark.slow
+def test_stock_tree_uses_the_tasks_cameras_and_no_ft(stock_pipeline):
+    with h5py.File(stock_pipeline["tree"]) as f:
+        header = json.loads(f.attrs["header"])
+        assert header["camera_map"] == {"fixed": "base_camera", "wrist": "hand_camera"}
+        assert header["has_ft"] is False and header["action_dim"] == 7
+        assert f["fixed_rgb"].shape[1:] == (128, 128, 3) and f["wrist_rgb"].dtype == np.uint8
+        assert f["in_start_region"][()].any() and f["depth"][()].max() >= 1
+        # The start region is reached by the last seed, not before (the loop stops there).
+        seeds = f["in_start_region"][()][f["is_seed"][()]]
+        assert seeds[-1] and not seeds[:-1].any()
+    assert stock_pipeline["modalities"] == ("fixed", "wrist")
+
+
+@pytest.mark.slow
+def test_stock_checkpoint_drives_the_wrapper(stock_pipeline):
+    from drem_maniskill.drem.checkpoint import CheckpointError, load_checkpoint
+    from drem_maniskill.drem.wrapper import DREMRewardWrapper
+
+    header, _ = load_checkpoint(stock_pipeline["checkpoint"])
+    assert header["env_id"] == STOCK and header["camera_uids"] == ["base_camera", "hand_camera"]
+    env = DREMRewardWrapper(gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose"), stock_pipeline["checkpoint"])
+    try:
+        env.reset(seed=1)
+        _, reward, _, _, info = env.step(torch.zeros(1, 7))
+        assert reward.shape == (1,) and torch.isfinite(reward).all()
+        assert "original_reward" in info and not torch.equal(reward, info["original_reward"])
+    finally:
+        env.close()
+    # A checkpoint of the stock task does not fit our task.
+    with pytest.raises(CheckpointError, match="PegInsertionSide-v1"):
+        DREMRewardWrapper(gym.make("PegInHole-v1"), stock_pipeline["checkpoint"])
+
+
+@pytest.mark.slow
+def test_training_with_ft_on_a_tree_without_it_is_a_clear_error(stock_pipeline, tmp_path):
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.drem.train import TrainConfig, train_reward
+
+    config = TrainConfig.preset("tiny", iterations=1, model=ModelConfig(image_size=64))
+    with pytest.raises(ValueError, match="no wrist F/T sensor.*--modalities fixed wrist"):
+        train_reward(stock_pipeline["tree"], str(tmp_path / "r"), config, progress=False)
+
+
+def test_stock_states_replay_a_step_through_the_adapter():
+    """ManiSkill's set_state_dict leaves the PD drive targets stale; the adapter restores them."""
+    env = gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose")
+    try:
+        env.reset(seed=0)
+        adapter = adapter_for(env)
+        action = torch.tensor([[0.5, -0.3, 0.2, 0.0, 0.0, 0.1, -1.0]])
+        env.step(action)  # moves the drive targets away from the reset pose
+        saved = adapter.get_state()
+        flat = adapter.flatten(saved)
+        first, *_ = env.step(action)
+        for _ in range(3):
+            env.step(-action)
+        adapter.set_state(adapter.unflatten(flat))
+        again, *_ = env.step(action)
+        assert torch.allclose(first, again, atol=1e-5)
+        assert adapter.camera_map == {"fixed": "base_camera", "wrist": "hand_camera"} and not adapter.has_ft
+        assert adapter.ee_state().shape == (1, 8)
+    finally:
+        env.close()
