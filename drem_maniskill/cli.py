@@ -76,7 +76,8 @@ def _cmd_examine(args) -> None:
     from drem_maniskill.drem.evaluate import examine
 
     result = examine(args.task, args.checkpoint, seeds=range(args.seed, args.seed + args.episodes), out_dir=args.out)
-    keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss", "success_rate")
+    keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss", "success_rate",
+            "spearman_with_normalized_dense", "spearman_with_insertion_depth", "spearman_with_normalized_dense_expert")
     print(json.dumps({k: result[k] for k in keys}, indent=2))
     print(f"plot: {args.out}/examination.png, numbers: {args.out}/quality.json")
 

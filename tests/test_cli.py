@@ -39,6 +39,8 @@ def test_chain_record_sample_train_examine(tmp_path):
     quality = json.loads((tmp_path / "exam" / "quality.json").read_text())
     assert set(quality["curves"]) == {"direct_success", "align_success", "search_fail", "random"}
     assert quality["success_rate"]["direct_success"] == 1.0
+    assert -1 <= quality["spearman_with_normalized_dense"] <= 1 and -1 <= quality["spearman_with_insertion_depth"] <= 1
+    assert len(quality["dense_curves"]["random"][0]) == len(quality["curves"]["random"][0])
     assert (tmp_path / "exam" / "examination.png").stat().st_size > 10_000
 
 

@@ -34,18 +34,54 @@ def auroc(scores_pos: Sequence[float], scores_neg: Sequence[float]) -> float:
 
 
 def rollout(env, policy_name: str, seed: int, steps: int | None = None, stop_on_success: bool = True) -> dict:
-    """One episode: per-step reward, success, and the approach-axis force (for contact loss)."""
+    """One episode: per-step reward, success, normalized_dense, insertion depth and wrist force."""
     policy = get_policy(policy_name, env, seed=seed)
     obs, _ = env.reset(seed=seed)
-    rewards, force, success = [], [], False
+    u = env.unwrapped
+    rewards, force, dense, depth, success = [], [], [], [], False
     for _ in range(steps or env.spec.max_episode_steps or 50):
-        obs, reward, terminated, truncated, info = env.step(policy(obs))
+        action = policy(obs)
+        obs, reward, terminated, truncated, info = env.step(action)
         rewards.append(float(reward[0]))
-        force.append(float(env.unwrapped.ft.buffer[0, -1, 2].abs()))
+        # The task's own shaped reward, for the correlation with DREM (every ManiSkill task with
+        # a dense reward has it; PlugCharger-v1 does not).
+        try:
+            dense.append(float(u.compute_normalized_dense_reward(obs=obs, action=action, info=info)[0]))
+        except NotImplementedError:
+            pass
+        if "insertion_depth" in info:
+            depth.append(float(info["insertion_depth"][0]))
+        if hasattr(u, "ft"):
+            force.append(float(u.ft.buffer[0, -1, 2].abs()))
         success = success or bool(info["success"][0])
         if (stop_on_success and success) or bool(truncated.any()):
             break
-    return dict(rewards=rewards, force=force, success=success)
+    return dict(rewards=rewards, force=force, success=success, normalized_dense=dense, insertion_depth=depth)
+
+
+def _pooled_spearman(episodes: list, key: str) -> float | None:
+    """Spearman correlation of DREM reward with ``key`` over all steps of ``episodes``."""
+    pairs = [(r, v) for ep in episodes if len(ep.get(key, [])) == len(ep["rewards"]) for r, v in zip(ep["rewards"], ep[key])]
+    if len(pairs) < 3:
+        return None
+    a, b = np.array(pairs).T
+    if np.ptp(a) == 0 or np.ptp(b) == 0:
+        return None
+    return float(spearmanr(a, b).correlation)
+
+
+def _make_env(env_id: str, checkpoint: str, env_kwargs: dict | None):
+    """Our task with ``reward_mode="drem"``, or a stock task wrapped by ``DREMRewardWrapper``."""
+    import gymnasium as gym
+
+    from drem_maniskill.recording import _is_ours
+
+    if _is_ours(env_id):
+        return gym.make(env_id, obs_mode="state_dict", reward_mode="drem", drem_checkpoint=str(checkpoint), **(env_kwargs or {}))
+    from drem_maniskill.drem.wrapper import DREMRewardWrapper
+
+    kwargs = {"control_mode": "pd_ee_delta_pose", **(env_kwargs or {})}
+    return DREMRewardWrapper(gym.make(env_id, obs_mode="state_dict", **kwargs), checkpoint)
 
 
 def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float] | None:
@@ -59,10 +95,15 @@ def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float
 
 def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_dir: str | None = None,
             policies: Sequence[str] = EXAMINATION, env_kwargs: dict | None = None) -> dict:
-    """Run the quality measures of the model card; writes ``quality.json`` and ``examination.png``."""
-    import gymnasium as gym
+    """Run the quality measures of the model card; writes ``quality.json`` and ``examination.png``.
 
-    env = gym.make(env_id, obs_mode="state_dict", reward_mode="drem", drem_checkpoint=str(checkpoint), **(env_kwargs or {}))
+    On ManiSkill's own tasks only ``expert`` and ``random`` exist among the scripted policies.
+    """
+    from drem_maniskill.recording import _is_ours
+
+    if not _is_ours(env_id):
+        policies = [p for p in policies if p in ("random",)]
+    env = _make_env(env_id, checkpoint, env_kwargs)
     try:
         expert = [rollout(env, "expert", s) for s in seeds]
         curves = {p: [rollout(env, p, s, stop_on_success=False) for s in seeds] for p in policies}
@@ -83,6 +124,12 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
             after=float(np.mean([d[1] for d in drops])) if drops else None,
         ),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
+        # Over every step of the expert and examination rollouts.
+        spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],
+                                                        "normalized_dense"),
+        spearman_with_insertion_depth=_pooled_spearman(everything, "insertion_depth"),
+        spearman_with_normalized_dense_expert=_pooled_spearman(expert, "normalized_dense"),
+        dense_curves={p: [ep["normalized_dense"] for ep in eps] for p, eps in curves.items()},
         curves={p: [ep["rewards"] for ep in eps] for p, eps in curves.items()},
         expert_curves=[e["rewards"] for e in expert],
     )
