@@ -110,3 +110,16 @@ def test_fast_path_follows_new_weights():
         reward.model.fusion[2].bias.add_(1.0)
         reward.h_goal.mul_(-1.0)
     torch.testing.assert_close(reward(inputs), reward.forward_reference(inputs), atol=ATOL, rtol=0)
+
+
+@pytest.mark.parametrize("channels", [slice(0, 3), slice(1, 4)])
+def test_rgb_views_of_rgba_images_as_cameras_give_them(shipped, channels):
+    # ManiSkill's camera rgb is rgba[..., :3]: the fast path reads the RGBA block and drops alpha.
+    gen = torch.Generator().manual_seed(11)
+    for batch in (1, 3):
+        rgba = {c: torch.randint(0, 256, (batch, 128, 128, 4), dtype=torch.uint8, generator=gen) for c in ("fixed", "wrist")}
+        views = {c: rgba[c][..., channels] for c in rgba} | {"ft": torch.randn(batch, 8, 6, generator=gen)}
+        copies = {c: v.contiguous() for c, v in views.items()}
+        assert not views["fixed"].is_contiguous()
+        torch.testing.assert_close(shipped(views), shipped(copies), atol=1e-6, rtol=0)
+        torch.testing.assert_close(shipped(views), shipped.forward_reference(copies), atol=ATOL, rtol=0)

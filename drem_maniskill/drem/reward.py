@@ -44,7 +44,9 @@ class FastEncoder:
     Matches ``model.encode(model.prepare(batch))`` to float rounding (tests/test_reward_speed_paths.py).
     """
 
-    DENSE_MAX = 600_000  # conv layers with in x out sizes up to this become one dense matrix
+    # Conv layers with in x out sizes up to this become one dense matrix (only the last one at
+    # 64 px: larger ones are memory-bound when an env step has just flushed the caches).
+    DENSE_MAX = 100_000
 
     def __init__(self, model: DREMModel):
         cfg = model.config
@@ -154,16 +156,30 @@ class FastEncoder:
         if h != w or h % self.size or any(x.shape != first.shape for x in imgs):
             return None
         f = h // self.size
-        x = torch.stack(imgs).float() if len(imgs) > 1 else first[None].float()
-        K, B = x.shape[:2]
+        # Cameras hand out RGB as a view of RGBA (strides [..., 4, 1]): copying such a view
+        # byte by byte is slow, so the whole RGBA block is pooled and the alpha dropped after.
+        imgs = [self._rgba_view(x) for x in imgs]
+        x = torch.stack(imgs).float() if len(imgs) > 1 else imgs[0][None].float()
+        K, B, _, _, C = x.shape
         if f == 2:  # two adds of strided views: much cheaper than a reduction over a 6-d view
-            x = x.view(K, B, self.size, 2, w, 3)
+            x = x.view(K, B, self.size, 2, w, C)
             x = x[:, :, :, 0] + x[:, :, :, 1]
-            x = x.view(K, B, self.size, self.size, 6)
-            x = x[..., :3] + x[..., 3:]
+            x = x.view(K, B, self.size, self.size, 2 * C)
+            x = x[..., :C] + x[..., C:]
         elif f > 2:
-            x = x.view(K, B, self.size, f, self.size, f, 3).sum((3, 5))
+            x = x.view(K, B, self.size, f, self.size, f, C).sum((3, 5))
+        if C != 3:
+            return x[..., :3].mul(1.0 / (255.0 * f * f))
         return x.mul_(1.0 / (255.0 * f * f))
+
+    @staticmethod
+    def _rgba_view(x: torch.Tensor) -> torch.Tensor:
+        """``x`` ``[B, H, W, 3]`` itself, or the contiguous ``[B, H, W, 4]`` block it is a view of."""
+        if x.is_contiguous() or x.stride()[1:] != (x.shape[2] * 4, 4, 1) or x.shape[0] > 1 and x.stride(0) != x.shape[1] * x.shape[2] * 4:
+            return x
+        if x.storage_offset() + x.numel() // 3 * 4 > x.untyped_storage().nbytes():
+            return x
+        return x.as_strided((*x.shape[:3], 4), (*x.stride()[:3], 1))
 
     def _s2d_conv(self, x, w, b):
         K, B, H, W, C = x.shape
