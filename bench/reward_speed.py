@@ -7,7 +7,9 @@
 3. Reward-model training: samples per second on this CPU (forward, backward, Adam step).
 
 Run: ``.venv/bin/python bench/reward_speed.py --checkpoint rewards/PegInHole-v1/drem.pt``
-(``--quick`` for a smoke run). Writes the numbers to ``--out`` as JSON too.
+(``--quick`` for a smoke run, ``--parts reward`` for the first measurement only). Writes the
+numbers to ``--out`` as JSON too. The reward is measured twice: as shipped, and through the
+straightforward ``model.encode(model.prepare(...))`` path it replaced, in the same rounds.
 """
 
 from __future__ import annotations
@@ -45,17 +47,28 @@ def time_steps(env, steps: int, seed: int = 0) -> list:
 
 
 def bench_reward(task: str, checkpoint: str, steps: int) -> dict:
-    """Median step time with and without the DREM reward, interleaved in rounds."""
+    """Median step time without the reward, with DREM and with DREM's straightforward path, interleaved."""
     plain = gym.make(task, obs_mode="rgb", reward_mode="none")
     drem = gym.make(task, obs_mode="rgb", reward_mode="drem", drem_checkpoint=checkpoint)
-    time_steps(plain, 5), time_steps(drem, 5)  # warm-up
-    a, b = [], []
-    for r in range(4):  # alternate so machine noise hits both alike
-        a += time_steps(plain, steps // 4, seed=r)
-        b += time_steps(drem, steps // 4, seed=r)
-    plain.close(), drem.close()
-    pa, pb = statistics.median(a), statistics.median(b)
-    return dict(rgb_step_ms=pa * 1e3, drem_step_ms=pb * 1e3, drem_overhead=(pb - pa) / pa)
+    # The same reward through model.encode(model.prepare(...)): what the fast encoder replaced.
+    straight = gym.make(task, obs_mode="rgb", reward_mode="drem", drem_checkpoint=checkpoint)
+    model = straight.unwrapped._drem
+    model.forward = model.forward_reference
+    envs = (plain, drem, straight)
+    for env in envs:
+        time_steps(env, 5)  # warm-up
+    times = [[] for _ in envs]
+    for r in range(4):  # alternate so machine noise hits all alike
+        for env, t in zip(envs, times):
+            t += time_steps(env, steps // 4, seed=r)
+    for env in envs:
+        env.close()
+    pa, pb, pc = (statistics.median(t) for t in times)
+    return dict(
+        rgb_step_ms=pa * 1e3, drem_step_ms=pb * 1e3, drem_overhead=(pb - pa) / pa,
+        drem_straight_step_ms=pc * 1e3, drem_straight_overhead=(pc - pa) / pa,
+        threads=torch.get_num_threads(), load_avg=os.getloadavg()[0],
+    )
 
 
 def bench_sampling(task: str, steps: int) -> dict:
@@ -106,21 +119,25 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=80)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", default="outputs/bench/reward_speed.json")
+    parser.add_argument("--parts", nargs="+", choices=("reward", "sampling", "training"), default=("reward", "sampling", "training"))
     args = parser.parse_args()
     steps = 8 if args.quick else args.steps
     checkpoint = args.checkpoint or str(default_checkpoint(args.task))
     res = dict(task=args.task, checkpoint=checkpoint)
-    res["reward"] = bench_reward(args.task, checkpoint, steps)
-    res["sampling"] = bench_sampling(args.task, steps)
-    res["training"] = {str(s): bench_training(s, 16, 2 if args.quick else 10) for s in (64, 128)}
-    r, s = res["reward"], res["sampling"]
     print(f"task {args.task}, checkpoint {checkpoint}")
-    print(f"rgb env step            {r['rgb_step_ms']:7.1f} ms")
-    print(f"rgb env step + DREM     {r['drem_step_ms']:7.1f} ms   -> DREM adds {100 * r['drem_overhead']:.1f} % (target <= 15 %)")
-    print(f"sampler children        {s['children_per_s']:7.1f} /s")
-    print(f"plain rgb env steps     {s['rgb_steps_per_s']:7.1f} /s   -> ratio {s['ratio']:.2f} (target >= 0.7)")
-    for size, t in res["training"].items():
-        print(f"training at {size:>3} px      {t['samples_per_s']:7.1f} samples/s ({t['samples_per_iteration']} per iteration, {t['threads']} threads)")
+    if "reward" in args.parts:
+        r = res["reward"] = bench_reward(args.task, checkpoint, steps)
+        print(f"rgb env step            {r['rgb_step_ms']:7.1f} ms   ({r['threads']} torch threads, load average {r['load_avg']:.2f})")
+        print(f"rgb env step + DREM     {r['drem_step_ms']:7.1f} ms   -> DREM adds {100 * r['drem_overhead']:.1f} % (target <= 15 %)")
+        print(f"  straightforward path  {r['drem_straight_step_ms']:7.1f} ms   -> adds {100 * r['drem_straight_overhead']:.1f} % (model.encode(model.prepare(...)))")
+    if "sampling" in args.parts:
+        s = res["sampling"] = bench_sampling(args.task, steps)
+        print(f"sampler children        {s['children_per_s']:7.1f} /s")
+        print(f"plain rgb env steps     {s['rgb_steps_per_s']:7.1f} /s   -> ratio {s['ratio']:.2f} (target >= 0.7)")
+    if "training" in args.parts:
+        res["training"] = {str(s): bench_training(s, 16, 2 if args.quick else 10) for s in (64, 128)}
+        for size, t in res["training"].items():
+            print(f"training at {size:>3} px      {t['samples_per_s']:7.1f} samples/s ({t['samples_per_iteration']} per iteration, {t['threads']} threads)")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp")
