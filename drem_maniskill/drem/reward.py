@@ -316,10 +316,9 @@ class DREMReward(nn.Module):
         if self._fast_key != key:
             self._fast_encoder = FastEncoder(self.model)
             with torch.no_grad():
-                # R = 1 - (1 - <h_bar, h_bar_G>) / d(h_0, h_G) = a + <h_bar, h_bar_G / d(h_0, h_G)>
-                scale = cosine_distance(self.h_start[None], self.h_goal[None]).clamp(min=1e-6)[0]
-                self._goal_unit = F.normalize(self.h_goal, dim=-1) / scale
-                self._offset = 1.0 - 1.0 / scale
+                # Eq. 2's constants, computed once with the same ops as forward_reference.
+                self._goal_unit = F.normalize(self.h_goal[None], dim=-1)
+                self._scale = cosine_distance(self.h_start[None], self.h_goal[None]).clamp(min=1e-6)
             self._fast_key = key
         return self._fast_encoder
 
@@ -357,8 +356,10 @@ class DREMReward(nn.Module):
     def forward(self, batch: dict) -> torch.Tensor:
         """``R(s)`` ``[B]`` of raw inputs."""
         h = self.embed(batch)
-        # 1 - d(h, h_G) / d(h_0, h_G) with the unit goal and the normaliser precomputed.
-        return torch.addmv(self._offset, F.normalize(h, dim=-1), self._goal_unit)
+        # 1 - d(h, h_G) / d(h_0, h_G) with the unit goal and the normaliser precomputed, in the
+        # reference's order: d(h_0, h_G) can be tiny (a barely trained model), and folding
+        # 1 / d(h_0, h_G) into the goal would amplify rounding differences by as much.
+        return 1.0 - (1.0 - (F.normalize(h, dim=-1) * self._goal_unit).sum(-1)) / self._scale
 
     @torch.no_grad()
     def forward_reference(self, batch: dict) -> torch.Tensor:
