@@ -422,9 +422,8 @@ class InsertionEnv(BaseEnv):
                 uid: self._sensors[uid].get_obs(rgb=True, depth=False, position=False, segmentation=False)["rgb"]
                 for uid in need
             }
-        from drem_maniskill.drem.model import CAMERA_OF
-
-        batch = {key: images[uid] for key, uid in CAMERA_OF.items() if uid in images}
+        # The checkpoint's own modality -> camera map (the images are passed as views, uncopied).
+        batch = {key: images[uid] for key, uid in self._drem.camera_of.items()}
         batch["ft"] = self.ft.buffer
         return self._drem(batch)
 
