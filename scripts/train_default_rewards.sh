@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Makes the shipped reward checkpoints rewards/<task>/drem.pt, exactly as their model cards say.
+# Makes the shipped reward checkpoints rewards/<task>/drem.pt and the image-only baseline
+# rewards/<task>/drem_image.pt (same tree, --modalities fixed wrist), as their model cards say.
 # Scale is set for this 2-core CPU machine (M=200, 2000 iterations at 64 px); the paper's is
 # M=500 and 20k iterations at 128 px. Each stage resumes after an interruption.
 #   bash scripts/train_default_rewards.sh [TASK ...]      (default: both tasks)
@@ -21,4 +22,10 @@ for task in "${tasks[@]}"; do
   cp "$out/reward/drem.pt" "rewards/$task/drem.pt"
   cp "$out/examination/quality.json" "rewards/$task/quality.json"
   cp "$out/examination/examination.png" "rewards/$task/examination.png"
+  # The paper's "Image learned" baseline: the same model and tree without the F/T input.
+  $BIN train-reward --dataset "$out/tree.h5" --out "$out/reward_image" --preset quick --iterations "$ITERS" --threads 1 --modalities fixed wrist
+  $BIN examine --task "$task" --checkpoint "$out/reward_image/drem.pt" --out "$out/examination_image" --episodes 20
+  cp "$out/reward_image/drem.pt" "rewards/$task/drem_image.pt"
+  cp "$out/examination_image/quality.json" "rewards/$task/quality_image.json"
+  cp "$out/examination_image/examination.png" "rewards/$task/examination_image.png"
 done
