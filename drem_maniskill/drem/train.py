@@ -48,6 +48,8 @@ class TrainConfig:
     save_every: int = 200
     log_every: int = 20
     threads: Optional[int] = None
+    device: str = "auto"
+    """``auto``: CUDA when available, else the CPU."""
     model: ModelConfig = field(default_factory=ModelConfig)
 
     @classmethod
@@ -159,7 +161,9 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
         torch.set_num_threads(config.threads)
     data = TreeDataset(dataset_path, config.model)
     torch.manual_seed(config.seed)
-    model = DREMModel(config.model)
+    device = torch.device("cuda" if config.device == "auto" and torch.cuda.is_available() else
+                          ("cpu" if config.device == "auto" else config.device))
+    model = DREMModel(config.model).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     gen = torch.Generator().manual_seed(config.seed)
     step = 0
@@ -184,7 +188,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     while step < config.iterations:
         a, b = data.sample_pairs(config.pairs_per_batch, config.eps, gen)
         idx = torch.cat([a, b])
-        batch = {k: torch.cat([v, goal[k]]) for k, v in data.batch(idx).items()}
+        batch = {k: torch.cat([v, goal[k]]).to(device) for k, v in data.batch(idx).items()}
         h, recon, inputs = model(batch)
         h_goal, h = h[-1:], h[:-1]
         dist = cosine_distance(h, h_goal)
@@ -217,8 +221,9 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
     """Write the reward checkpoint: weights, ``h(s_0)``, ``h(s_G)`` and the header."""
     model.eval()
     with torch.no_grad():
-        h0 = model.encode(model.prepare(data.expert["first"]))
-        hg = model.encode(model.prepare(data.expert["last"]))
+        device = next(model.parameters()).device
+        h0 = model.encode(model.prepare({k: v.to(device) for k, v in data.expert["first"].items()}))
+        hg = model.encode(model.prepare({k: v.to(device) for k, v in data.expert["last"].items()}))
     header = dict(
         env_id=data.header["env_id"],
         env_kwargs=data.header.get("env_kwargs", {}),
@@ -240,7 +245,7 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
 
 def _resumable(config_json: dict) -> dict:
     """The config keys that must match to resume (more iterations or other logging are fine)."""
-    return {k: v for k, v in config_json.items() if k not in ("iterations", "save_every", "log_every", "threads")}
+    return {k: v for k, v in config_json.items() if k not in ("iterations", "save_every", "log_every", "threads", "device")}
 
 
 def _flatten_opt(state: dict) -> dict:
