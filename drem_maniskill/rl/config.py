@@ -1,0 +1,115 @@
+"""Configuration of a SAC run (``train-policy``): one dataclass, two presets, saved as JSON in the run dir."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+PRESETS = ("light", "paper")
+
+
+@dataclass
+class RLConfig:
+    """Everything a run needs; ``RLConfig.preset(name, **overrides)`` is the usual way to make one."""
+
+    task: str = "PegInHole-v1"
+    reward: str = "drem"
+    seed: int = 0
+    steps: int = 20_000  # environment steps (all envs together)
+    preset: str = "light"
+    out: Optional[str] = None  # run dir; None: outputs/rl/<task>/<reward>/seed<S>
+
+    # --- what the policy sees
+    image_size: int = 32  # both cameras, area-downscaled from the 128 px render
+    cameras: tuple = ("fixed_camera", "wrist_camera")
+    policy_ft: Optional[bool] = True  # None: the paper's rule, F/T only for the drem reward
+    policy_state: bool = True  # qpos (9) + tcp pose (7)
+
+    # --- the policy network (SB3 MultiInputPolicy with our extractor)
+    cnn_channels: tuple = (16, 32, 32)  # stride-2 convs per camera
+    camera_features: int = 64
+    ft_features: int = 32
+    net_arch: tuple = (256, 256)
+    share_features_extractor: bool = False
+
+    # --- SAC (stable-baselines3)
+    learning_rate: float = 3e-4
+    buffer_size: int = 50_000
+    batch_size: int = 128
+    learning_starts: int = 1_000
+    train_freq: int = 1
+    gradient_steps: int = 1
+    gamma: float = 0.95  # 50-step episodes: an effective horizon of ~20 steps
+    tau: float = 0.005
+    ent_coef: str = "auto"
+
+    # --- environment
+    num_envs: int = 1
+    sim_backend: str = "cpu"
+    env_kwargs: dict = field(default_factory=dict)
+    device: str = "auto"  # torch device of SAC; "auto": cuda when there is one
+    threads: int = 2  # torch CPU threads
+
+    # --- evaluation and checkpoints
+    eval_every: int = 2_000
+    eval_seed: int = 10_000
+    eval_episodes: int = 10
+
+    # --- VICE-RAQ (reward "vice" only)
+    vice: dict = field(default_factory=dict)  # VICEConfig overrides
+    vice_goal_seeds: int = 10  # expert episodes (seeds 0..n-1) whose successful images are the goals
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "RLConfig":
+        """The ``light`` (CPU, about an hour) or ``paper`` (GPU) config with ``overrides`` applied."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose one of {list(PRESETS)}")
+        base = dict(preset=name)
+        if name == "paper":
+            # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
+            # a policy CNN like the reward encoder's (6 stride-2 layers at 128 px); 150k steps.
+            base.update(
+                image_size=128, policy_ft=None, policy_state=False, cnn_channels=(16, 32, 32, 64, 64, 64),
+                steps=150_000, buffer_size=50_000, batch_size=256, learning_starts=5_000, eval_every=5_000,
+            )
+        unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise TypeError(f"unknown RLConfig fields {sorted(unknown)}")
+        return cls(**{**base, **overrides})
+
+    def __post_init__(self):
+        for key in ("cameras", "cnn_channels", "net_arch"):
+            setattr(self, key, tuple(getattr(self, key)))
+        if 128 % self.image_size:
+            raise ValueError(f"image_size must divide the 128 px render (8, 16, 32, 64, 128), got {self.image_size}")
+
+    @property
+    def uses_ft(self) -> bool:
+        """Whether the policy gets the F/T history (``policy_ft=None``: only for the drem reward, as the paper)."""
+        return self.reward == "drem" if self.policy_ft is None else bool(self.policy_ft)
+
+    @property
+    def run_dir(self) -> Path:
+        """The run directory."""
+        return Path(self.out) if self.out else Path("outputs/rl") / self.task / self.reward / f"seed{self.seed}"
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable form."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RLConfig":
+        """Inverse of ``to_dict`` (unknown keys are an error, so a stale config is not half-read)."""
+        return cls(**d)
+
+    def save(self, path) -> None:
+        """Write the config as JSON."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path) -> "RLConfig":
+        """Read a config written by ``save``."""
+        return cls.from_dict(json.loads(Path(path).read_text()))
