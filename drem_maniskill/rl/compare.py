@@ -1,0 +1,104 @@
+"""``compare``: success rate against env steps over seeds, one curve per reward, one panel per task (the paper's Fig. 5)."""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from drem_maniskill.rl.train import read_eval_csv
+
+
+def steps_to_reach(steps: Sequence[float], values: Sequence[float], level: float = 0.5) -> Optional[float]:
+    """First step at which ``values`` reaches ``level`` (linear interpolation between evaluations), or None."""
+    for i, v in enumerate(values):
+        if v >= level:
+            if i == 0 or values[i - 1] >= level:
+                return float(steps[i])
+            s0, s1, v0 = steps[i - 1], steps[i], values[i - 1]
+            return float(s0 + (level - v0) / (v - v0) * (s1 - s0))
+    return None
+
+
+def load_run(run_dir) -> dict:
+    """A run's config (task, reward, seed) and its evaluation rows."""
+    run_dir = Path(run_dir)
+    cfg_path = run_dir / "config.json"
+    if not cfg_path.exists():
+        raise FileNotFoundError(f"{run_dir} is not a train-policy run dir (no config.json)")
+    cfg = json.loads(cfg_path.read_text())
+    rows = read_eval_csv(run_dir / "eval.csv")
+    if not rows:
+        raise ValueError(f"{run_dir}/eval.csv holds no evaluations yet")
+    return dict(run_dir=str(run_dir), task=cfg["task"], reward=cfg["reward"], seed=cfg.get("seed"), rows=rows)
+
+
+def aggregate(runs: list[dict]) -> dict:
+    """Per (task, reward): the seeds' curves on their common evaluation steps; mean, min, max, std."""
+    groups = defaultdict(list)
+    for run in runs:
+        groups[(run["task"], run["reward"])].append(run)
+    out = {}
+    for key, group in groups.items():
+        # Seeds may stop at different steps (a run still going): keep the steps all of them reached.
+        common = sorted(set.intersection(*[{r["steps"] for r in run["rows"]} for run in group]))
+        curves = np.array([[{r["steps"]: r["success_rate"] for r in run["rows"]}[s] for s in common] for run in group])
+        mean = curves.mean(axis=0)
+        out[key] = dict(steps=common, mean=mean, min=curves.min(axis=0), max=curves.max(axis=0), std=curves.std(axis=0),
+                        seeds=[run["seed"] for run in group], run_dirs=[run["run_dir"] for run in group])
+    return out
+
+
+def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str = "minmax", level: float = 0.5) -> dict:
+    """Plot and tabulate runs: ``<out>/success.png``, ``<out>/summary.json``, ``<out>/summary.md``; returns the table."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if band not in ("minmax", "std"):
+        raise ValueError(f"band must be 'minmax' or 'std', got {band!r}")
+    runs = [load_run(d) for d in run_dirs]
+    groups = aggregate(runs)
+    tasks = sorted({t for t, _ in groups})
+    out_dir = Path(out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4), squeeze=False)
+    table = []
+    for ax, task in zip(axes[0], tasks):
+        for (t, reward), g in sorted(groups.items()):
+            if t != task:
+                continue
+            x = np.asarray(g["steps"])
+            lo, hi = (g["min"], g["max"]) if band == "minmax" else (g["mean"] - g["std"], g["mean"] + g["std"])
+            line, = ax.plot(x, g["mean"], label=f"{reward} ({len(g['seeds'])} seeds)")
+            ax.fill_between(x, np.clip(lo, 0, 1), np.clip(hi, 0, 1), color=line.get_color(), alpha=0.2)
+            reach = steps_to_reach(g["steps"], list(g["mean"]), level)
+            table.append(dict(task=task, reward=reward, seeds=len(g["seeds"]), final_steps=int(x[-1]),
+                              final_success=float(g["mean"][-1]), final_success_min=float(g["min"][-1]),
+                              final_success_max=float(g["max"][-1]),
+                              steps_to_50=("not reached" if reach is None else round(reach))))
+        ax.set_title(task)
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel("success rate")
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"SAC success rate, mean and {'min-max' if band == 'minmax' else '±1 std'} over seeds")
+    fig.tight_layout()
+    png = out_dir / "success.png"
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+
+    (out_dir / "summary.json").write_text(json.dumps(dict(level=level, band=band, rows=table), indent=2) + "\n")
+    head = ["task", "reward", "seeds", "final_steps", "final_success", f"steps_to_{int(level * 100)}"]
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for r in table:
+        final = f"{r['final_success']:.2f} ({r['final_success_min']:.2f}-{r['final_success_max']:.2f})"
+        lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | {r['steps_to_50']} |")
+    (out_dir / "summary.md").write_text("\n".join(lines) + "\n")
+    return dict(png=str(png), json=str(out_dir / "summary.json"), markdown=str(out_dir / "summary.md"), rows=table)
