@@ -53,7 +53,7 @@ def aggregate(runs: list[dict]) -> dict:
 
 
 def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str = "minmax", level: float = 0.5) -> dict:
-    """Plot and tabulate runs: ``<out>/success.png``, ``<out>/summary.json``, ``<out>/summary.md``; returns the table."""
+    """Plot and tabulate runs: ``<out>/comparison.png``, ``comparison.json``, ``comparison.md``; returns the table."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -90,15 +90,19 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
         ax.legend(fontsize=8)
     fig.suptitle(f"SAC success rate, mean and {'min-max' if band == 'minmax' else '±1 std'} over seeds")
     fig.tight_layout()
-    png = out_dir / "success.png"
+    png = out_dir / "comparison.png"
     fig.savefig(png, dpi=120)
     plt.close(fig)
 
-    (out_dir / "summary.json").write_text(json.dumps(dict(level=level, band=band, rows=table), indent=2) + "\n")
+    (out_dir / "comparison.json").write_text(json.dumps(dict(level=level, band=band, rows=table), indent=2) + "\n")
     head = ["task", "reward", "seeds", "final_steps", "final_success", f"steps_to_{int(level * 100)}"]
     lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for r in table:
         final = f"{r['final_success']:.2f} ({r['final_success_min']:.2f}-{r['final_success_max']:.2f})"
         lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | {r['steps_to_50']} |")
-    (out_dir / "summary.md").write_text("\n".join(lines) + "\n")
-    return dict(png=str(png), json=str(out_dir / "summary.json"), markdown=str(out_dir / "summary.md"), rows=table)
+    (out_dir / "comparison.md").write_text("\n".join(lines) + "\n")
+    return dict(png=str(png), json=str(out_dir / "comparison.json"), markdown=str(out_dir / "comparison.md"), rows=table)
+
+
+# The name the ``compare`` subcommand in cli.py calls.
+compare = compare_runs

@@ -184,6 +184,23 @@ def _check_resumable(saved: RLConfig, config: RLConfig) -> None:
         raise ValueError(f"{config.run_dir} holds a run with another config ({lines}); use another --out or the same options")
 
 
+def build_sac(config: RLConfig, venv) -> SAC:
+    """A fresh SB3 SAC with ``MultiInputPolicy`` and our extractor, as ``config`` says."""
+    return SAC(
+        "MultiInputPolicy", venv, learning_rate=config.learning_rate,
+        # No more transitions than steps: SB3 allocates (and pickles) the whole buffer.
+        buffer_size=min(config.buffer_size, config.steps), batch_size=config.batch_size,
+        learning_starts=config.learning_starts, train_freq=config.train_freq, gradient_steps=config.gradient_steps,
+        gamma=config.gamma, tau=config.tau, ent_coef=config.ent_coef, seed=config.seed, device=config.device,
+        policy_kwargs=dict(
+            features_extractor_class=MultimodalExtractor,
+            features_extractor_kwargs=dict(cnn_channels=config.cnn_channels, camera_features=config.camera_features,
+                                           ft_features=config.ft_features),
+            net_arch=list(config.net_arch), share_features_extractor=config.share_features_extractor,
+        ),
+    )
+
+
 def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> dict:
     """Train (or resume) SAC as ``config`` says; returns the run dir, steps, resumed-from step and last evaluation."""
     spec = reward_spec(config.reward)  # unknown names fail before anything is built
@@ -216,18 +233,7 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
             # A new seed for the resumed env's episodes (the same one would replay the first episodes).
             venv.seed(config.seed + 1_000_003 * model.num_timesteps)
         else:
-            model = SAC(
-                "MultiInputPolicy", venv, learning_rate=config.learning_rate,
-                buffer_size=min(config.buffer_size, config.steps), batch_size=config.batch_size,
-                learning_starts=config.learning_starts, train_freq=config.train_freq, gradient_steps=config.gradient_steps,
-                gamma=config.gamma, tau=config.tau, ent_coef=config.ent_coef, seed=config.seed, device=config.device,
-                policy_kwargs=dict(
-                    features_extractor_class=MultimodalExtractor,
-                    features_extractor_kwargs=dict(cnn_channels=config.cnn_channels, camera_features=config.camera_features,
-                                                   ft_features=config.ft_features),
-                    net_arch=list(config.net_arch), share_features_extractor=config.share_features_extractor,
-                ),
-            )
+            model = build_sac(config, venv)
         start = model.num_timesteps
         model.set_logger(Logger(None, [make_output_format("csv", str(run_dir / "sb3" / f"from{start}")),
                                        make_output_format("tensorboard", str(run_dir / "tb"))]))

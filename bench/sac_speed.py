@@ -1,0 +1,158 @@
+"""SAC wall-clock per 1,000 env steps for each reward, and the reward's share of it.
+
+For each preset and reward: build the run's env and SAC exactly as ``train-policy`` does, take
+``--warmup`` random steps (``learning_starts``), then time ``--steps`` SAC steps (one gradient step
+per env step). The reward's cost is measured two ways, printed side by side:
+
+* in-step timer: the time inside the env's ``get_reward`` (VICE: inside its wrapper, around the
+  inner env step), plus VICE's classifier updates amortised over ``update_every`` steps;
+* step difference: random-action env steps of this env against the same env with
+  ``reward_mode="none"`` (this carries about 0.5 ms of noise per step, see docs/drem.md).
+
+    .venv/bin/python bench/sac_speed.py                          # light preset, every reward
+    .venv/bin/python bench/sac_speed.py --presets light paper --paper-steps 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import torch  # noqa: E402
+
+from drem_maniskill.rl.config import RLConfig  # noqa: E402
+from drem_maniskill.rl.envs import REWARDS, ManiSkillDictVecEnv, make_env, max_episode_steps  # noqa: E402
+from drem_maniskill.rl.train import build_sac  # noqa: E402
+
+
+class Timer:
+    """Accumulates the time of the calls of one function."""
+
+    def __init__(self, fn):
+        self.fn, self.total, self.calls = fn, 0.0, 0
+
+    def __call__(self, *args, **kwargs):
+        t = time.perf_counter()
+        try:
+            return self.fn(*args, **kwargs)
+        finally:
+            self.total += time.perf_counter() - t
+            self.calls += 1
+
+
+def random_step_ms(env, n: int) -> float:
+    """Mean ms per env step (policy-observation wrapper included) with random actions."""
+    env.reset(seed=123)
+    t = time.perf_counter()
+    for i in range(n):
+        env.step(torch.as_tensor(env.action_space.sample()))
+        if (i + 1) % 50 == 0:
+            env.reset()
+    return 1000 * (time.perf_counter() - t) / n
+
+
+def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_steps: int, none_ms: float) -> dict:
+    """Time one reward in one preset; the numbers of one table row."""
+    config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
+                             vice=dict(seed=0), vice_goal_seeds=3, out=tempfile.mkdtemp())
+    torch.set_num_threads(config.threads)
+    env, vice = make_env(config)
+    u = env.unwrapped
+    if vice is not None:
+        inner, outer = Timer(vice.env.step), Timer(vice.step)
+        vice.env.step, vice.step = inner, outer
+        reward_timer = None
+    else:
+        reward_timer = u.get_reward = Timer(u.get_reward)
+    venv = ManiSkillDictVecEnv(env, max_episode_steps(task))
+    model = build_sac(config, venv)
+    model.learn(total_timesteps=warmup)  # random actions, no gradient steps yet
+    if reward_timer is not None:
+        reward_timer.total = reward_timer.calls = 0
+    else:
+        inner.total = outer.total = 0.0
+    env0 = venv.env_time
+    t = time.perf_counter()
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
+    total = time.perf_counter() - t
+    env_time = venv.env_time - env0
+    reward_time = reward_timer.total if reward_timer is not None else outer.total - inner.total
+    vice_update_s = 0.0
+    if vice is not None:
+        # Classifier updates run every update_every steps (1000): time one and amortise it.
+        t = time.perf_counter()
+        vice.update()
+        vice_update_s = time.perf_counter() - t
+        reward_time += vice_update_s * steps / vice.config.update_every
+    step_ms = random_step_ms(env, env_steps)
+    venv.close()
+    per_k = 1000 * total / steps
+    return dict(
+        preset=preset, reward=reward, task=task, steps=steps,
+        sac_s_per_1k=round(per_k, 1), env_steps_per_min=round(60 * steps / total, 1),
+        env_share=round(env_time / total, 3),
+        reward_s_per_1k=round(1000 * reward_time / steps, 2), reward_share=round(reward_time / total, 4),
+        vice_update_s=round(vice_update_s, 3),
+        step_ms=round(step_ms, 2), step_ms_none=round(none_ms, 2),
+        step_diff_share=round(max(step_ms - none_ms, 0.0) * steps / 1000 / total, 4),
+    )
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; print the table and write JSON."""
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--presets", nargs="+", default=["light"], choices=["light", "paper"])
+    p.add_argument("--rewards", nargs="+", default=list(REWARDS))
+    p.add_argument("--task", default="PegInHole-v1")
+    p.add_argument("--steps", type=int, default=300, help="timed SAC steps per reward, light preset")
+    p.add_argument("--paper-steps", type=int, default=20, help="timed SAC steps per reward, paper preset")
+    p.add_argument("--warmup", type=int, default=256, help="random steps first (also the first batches)")
+    p.add_argument("--env-steps", type=int, default=100, help="random env steps for the step-difference measure")
+    p.add_argument("--out", default="outputs/bench/sac_speed.json")
+    args = p.parse_args(argv)
+    import drem_maniskill  # noqa: F401
+
+    rows = []
+    for preset in args.presets:
+        # The reference: the same observation pipeline with reward_mode "none".
+        none_cfg = RLConfig.preset(preset, task=args.task, reward="sparse")
+        import gymnasium as gym
+
+        from drem_maniskill.rl.envs import PolicyObservation
+
+        none_env = PolicyObservation(gym.make(args.task, obs_mode="rgb", reward_mode="none", sim_backend="cpu"),
+                                     none_cfg.image_size, none_cfg.cameras, ft=True, state=none_cfg.policy_state)
+        none_ms = random_step_ms(none_env, args.env_steps)
+        none_env.close()
+        steps = args.steps if preset == "light" else args.paper_steps
+        for reward in args.rewards:
+            try:
+                row = measure(preset, reward, args.task, steps, args.warmup, args.env_steps, none_ms)
+            except FileNotFoundError as err:  # drem-image without its checkpoint
+                print(f"{preset} {reward}: skipped: {err}", file=sys.stderr)
+                continue
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    head = ("preset", "reward", "sac_s_per_1k", "env_steps_per_min", "env_share", "reward_s_per_1k", "reward_share",
+            "step_ms", "step_ms_none", "step_diff_share")
+    print("\n| " + " | ".join(head) + " |\n|" + " --- |" * len(head))
+    for r in rows:
+        print("| " + " | ".join(str(r[k]) for k in head) + " |")
+    load = os.getloadavg()[0]
+    print(f"\ntask {args.task}, torch threads {torch.get_num_threads()}, load average {load:.2f}")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(dict(rows=rows, load_average=load, task=args.task), indent=2) + "\n")
+    print(f"written: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
