@@ -43,8 +43,9 @@ def test_paper_preset_gives_ft_only_to_drem():
     assert RLConfig.preset("light", reward="sparse").uses_ft  # light: the same obs for every reward
 
 
-def test_steps_to_reach_interpolates():
-    assert steps_to_reach([0, 1000, 2000, 3000], [0.0, 0.2, 0.6, 1.0]) == pytest.approx(1750)
+def test_steps_to_reach_is_the_first_evaluation_at_the_level():
+    assert steps_to_reach([0, 1000, 2000, 3000], [0.0, 0.2, 0.6, 1.0]) == 2000
+    assert steps_to_reach([0, 1000, 2000], [0.0, 0.5, 0.4]) == 1000
     assert steps_to_reach([0, 1000], [0.0, 0.4]) is None
     assert steps_to_reach([0, 1000], [0.5, 0.9]) == 0
 
@@ -69,8 +70,8 @@ def test_compare_two_fake_runs(tmp_path):
     result = compare_runs(runs, str(tmp_path / "cmp"))
     assert (tmp_path / "cmp" / "comparison.png").stat().st_size > 10_000
     rows = {(r["task"], r["reward"]): r for r in json.loads((tmp_path / "cmp" / "comparison.json").read_text())["rows"]}
-    # Mean of the two drem seeds: 0, 0.3, 0.7, 1.0 -> 0.5 at 1000 + 0.2 / 0.4 * 1000.
-    assert rows[("PegInHole-v1", "drem")]["steps_to_50"] == 1500
+    # Mean of the two drem seeds: 0, 0.3, 0.7, 1.0: first at or above 0.5 at step 2000.
+    assert rows[("PegInHole-v1", "drem")]["steps_to_50"] == 2000
     assert rows[("PegInHole-v1", "drem")]["seeds"] == 2
     assert rows[("PegInHole-v1", "sparse")]["steps_to_50"] == "not reached"
     assert rows[("PegInHole-v1", "sparse")]["final_success"] == pytest.approx(0.2)

@@ -13,13 +13,10 @@ from drem_maniskill.rl.train import read_eval_csv
 
 
 def steps_to_reach(steps: Sequence[float], values: Sequence[float], level: float = 0.5) -> Optional[float]:
-    """First step at which ``values`` reaches ``level`` (linear interpolation between evaluations), or None."""
-    for i, v in enumerate(values):
+    """First evaluated step at which ``values`` reaches ``level``, or None (no interpolation: only what was measured)."""
+    for s, v in zip(steps, values):
         if v >= level:
-            if i == 0 or values[i - 1] >= level:
-                return float(steps[i])
-            s0, s1, v0 = steps[i - 1], steps[i], values[i - 1]
-            return float(s0 + (level - v0) / (v - v0) * (s1 - s0))
+            return float(s)
     return None
 
 
@@ -104,5 +101,11 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
     return dict(png=str(png), json=str(out_dir / "comparison.json"), markdown=str(out_dir / "comparison.md"), rows=table)
 
 
-# The name the ``compare`` subcommand in cli.py calls.
-compare = compare_runs
+def compare(run_dirs: Sequence, out: str = "outputs/rl/comparison") -> dict:
+    """``compare_runs`` as the ``compare`` subcommand of cli.py calls it: ``{task: {reward: row}}``, None if not reached."""
+    table: dict = defaultdict(dict)
+    for row in compare_runs(run_dirs, out)["rows"]:
+        reach = row["steps_to_50"]
+        table[row["task"]][row["reward"]] = dict(row, steps_to_50=None if reach == "not reached" else reach,
+                                                 final_success_mean=row["final_success"])
+    return dict(table)
