@@ -246,8 +246,8 @@ def train_policy(config: PolicyConfig, progress: bool = True, vice_goals=None) -
     out.mkdir(parents=True, exist_ok=True)
     saved = out / "config.json"
     if saved.exists() and (out / "checkpoint").exists():
-        before = {k: v for k, v in json.loads(saved.read_text()).items() if k not in ("steps", "threads")}
-        now = {k: v for k, v in json.loads(json.dumps(asdict(config))).items() if k not in ("steps", "threads")}
+        before = {k: v for k, v in json.loads(saved.read_text()).items() if k not in ("steps", "threads", "out")}
+        now = {k: v for k, v in json.loads(json.dumps(asdict(config))).items() if k not in ("steps", "threads", "out")}
         if before != now:
             diff = sorted(k for k in now if before.get(k) != now[k])
             raise ValueError(f"{out} holds a run with other settings ({diff}); pass another --out or delete it")
