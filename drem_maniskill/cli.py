@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 
@@ -82,25 +83,6 @@ def _cmd_examine(args) -> None:
     print(f"plot: {args.out}/examination.png, numbers: {args.out}/quality.json")
 
 
-def _cmd_train_policy(args) -> None:
-    from drem_maniskill.rl.sac import PolicyConfig, train_policy
-
-    config = PolicyConfig.preset_config(args.preset, task=args.task, reward=args.reward, seed=args.seed, steps=args.steps,
-                                        eval_every=args.eval_every, eval_episodes=args.eval_episodes, out=args.out,
-                                        threads=args.threads, vice_queries=args.vice_queries)
-    print(f"policy config: {config}")
-    out = train_policy(config)
-    print(f"run folder: {out} (eval.csv, progress.csv, tb/, checkpoint/)")
-
-
-def _cmd_compare(args) -> None:
-    from drem_maniskill.rl.compare import compare
-
-    compare(args.runs, args.out)
-    print(open(f"{args.out}/comparison.md").read())
-    print(f"plot: {args.out}/comparison.png, numbers: {args.out}/comparison.json")
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``drem-maniskill`` command."""
     from drem_maniskill.demo import TASKS
@@ -172,26 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="torch CPU threads")
     p.set_defaults(func=_cmd_train_reward)
 
-    from drem_maniskill.rl.sac import PRESETS, REWARDS
+    from drem_maniskill.rl.__main__ import add_subcommands
 
-    p = sub.add_parser("train-policy", help="train SAC (stable-baselines3) on a task with a chosen reward; resumes")
-    p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
-    p.add_argument("--reward", default="drem", choices=list(REWARDS), help="reward (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="training seed (default: %(default)s)")
-    p.add_argument("--steps", type=int, default=10_000, help="environment steps (default: %(default)s)")
-    p.add_argument("--preset", default="light", choices=list(PRESETS),
-                   help="light: proprioception + F/T + 32 px images (this CPU); paper: 64 px images (+F/T for drem)")
-    p.add_argument("--eval-every", type=int, help="steps between evaluations and checkpoints (default: 1000)")
-    p.add_argument("--eval-episodes", type=int, help="held-out seeds per evaluation (default: 10, from 10000)")
-    p.add_argument("--vice-queries", type=int, help="VICE-RAQ: total active-query budget (default: unlimited)")
-    p.add_argument("--threads", type=int, help="torch CPU threads")
-    p.add_argument("--out", default="", help="run folder (default: outputs/rl/<task>/<reward>/seed<S>)")
-    p.set_defaults(func=_cmd_train_policy)
-
-    p = sub.add_parser("compare", help="success-rate curves of train-policy runs, per task and reward, with a table")
-    p.add_argument("runs", nargs="+", help="run folders of train-policy")
-    p.add_argument("--out", default="outputs/rl/comparison", help="output folder (default: %(default)s)")
-    p.set_defaults(func=_cmd_compare)
+    add_subcommands(sub)  # train-policy, compare (drem_maniskill/rl, docs/rl.md)
     return parser
 
 
@@ -200,7 +165,14 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     import drem_maniskill  # noqa: F401  (registers the tasks)
 
-    args.func(args)
+    try:
+        args.func(args)
+    except (ValueError, FileNotFoundError) as err:
+        # Bad input (unknown reward, missing or mismatched file): the message says the fix.
+        if os.environ.get("DREM_DEBUG"):
+            raise
+        print(f"drem-maniskill {args.command}: error: {err}", file=sys.stderr)
+        return 2
     return 0
 
 

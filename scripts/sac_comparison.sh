@@ -3,15 +3,15 @@
 # reward x seed on a task with the light preset, two runs at a time (one torch thread each),
 # then the curves and the table. Each run resumes if interrupted; rerun to continue.
 #   bash scripts/sac_comparison.sh [TASK] [STEPS] [SEEDS] [REWARDS...]
-#   defaults: PegInHole-v1 3000 "0 1 2" sparse dense engineered vice drem-image drem
+#   defaults: PegInHole-v1 1500 "0 1 2" sparse engineered vice drem-image drem
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 TASK=${1:-PegInHole-v1}
-STEPS=${2:-3000}
+STEPS=${2:-1500}
 SEEDS=${3:-"0 1 2"}
 shift $(( $# < 3 ? $# : 3 ))
 REWARDS=("$@")
-[ ${#REWARDS[@]} -gt 0 ] || REWARDS=(sparse dense engineered vice drem-image drem)
+[ ${#REWARDS[@]} -gt 0 ] || REWARDS=(sparse engineered vice drem-image drem)
 BIN=.venv/bin/drem-maniskill
 OUT=${OUT:-outputs/rl}
 export OMP_WAIT_POLICY=PASSIVE
@@ -19,6 +19,6 @@ jobs=()
 for seed in $SEEDS; do for reward in "${REWARDS[@]}"; do jobs+=("$reward $seed"); done; done
 mkdir -p "$OUT/logs"
 printf '%s\n' "${jobs[@]}" | xargs -P "${PARALLEL:-2}" -L 1 bash -c \
-  "$BIN train-policy --task $TASK --reward \$0 --seed \$1 --steps $STEPS --eval-every 500 --eval-episodes 5 --threads 1 \
+  "$BIN train-policy --task $TASK --reward \$0 --seed \$1 --steps $STEPS --eval-every 500 --eval-episodes 5 --learning-starts 250 --threads 1 \
    --out $OUT/$TASK/\$0/seed\$1 > $OUT/logs/$TASK-\$0-\$1.log 2>&1 && echo done \$0 \$1"
 $BIN compare "$OUT/$TASK"/*/seed* --out "$OUT/comparison-$TASK"

@@ -31,13 +31,11 @@ def _cmd_compare(args) -> None:
     print(f"plot: {result['png']}, numbers: {result['json']}")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Parser of ``python -m drem_maniskill.rl``."""
+def add_subcommands(sub) -> None:
+    """Add ``train-policy`` and ``compare`` to an argparse subparsers object (here and in ``drem-maniskill``)."""
     from drem_maniskill.rl.config import PRESETS
     from drem_maniskill.rl.envs import REWARDS
 
-    parser = argparse.ArgumentParser(prog="python -m drem_maniskill.rl", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("train-policy", help="SAC on a task with a reward chosen by name; rerun to resume")
     p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
     # No argparse choices: reward_spec's error lists them and says what was asked for.
@@ -60,6 +58,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="outputs/rl/comparison", help="output dir (default: %(default)s)")
     p.add_argument("--band", default="minmax", choices=["minmax", "std"], help="spread over seeds")
     p.set_defaults(func=_cmd_compare)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of ``python -m drem_maniskill.rl``."""
+    parser = argparse.ArgumentParser(prog="python -m drem_maniskill.rl", description=__doc__)
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
     return parser
 
 

@@ -100,12 +100,3 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
     (out_dir / "comparison.md").write_text("\n".join(lines) + "\n")
     return dict(png=str(png), json=str(out_dir / "comparison.json"), markdown=str(out_dir / "comparison.md"), rows=table)
 
-
-def compare(run_dirs: Sequence, out: str = "outputs/rl/comparison") -> dict:
-    """``compare_runs`` as the ``compare`` subcommand of cli.py calls it: ``{task: {reward: row}}``, None if not reached."""
-    table: dict = defaultdict(dict)
-    for row in compare_runs(run_dirs, out)["rows"]:
-        reach = row["steps_to_50"]
-        table[row["task"]][row["reward"]] = dict(row, steps_to_50=None if reach == "not reached" else reach,
-                                                 final_success_mean=row["final_success"])
-    return dict(table)
