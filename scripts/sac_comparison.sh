@@ -4,6 +4,7 @@
 # then the curves and the table. Each run resumes if interrupted; rerun to continue.
 #   bash scripts/sac_comparison.sh [TASK] [STEPS] [SEEDS] [REWARDS...]
 #   defaults: PegInHole-v1 1500 "0 1 2" sparse engineered vice drem-image drem
+#   env: OUT (outputs/rl), PARALLEL (2), EVAL_EVERY (500), EVAL_EPISODES (5), LEARNING_STARTS (250)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 TASK=${1:-PegInHole-v1}
@@ -19,6 +20,6 @@ jobs=()
 for seed in $SEEDS; do for reward in "${REWARDS[@]}"; do jobs+=("$reward $seed"); done; done
 mkdir -p "$OUT/logs"
 printf '%s\n' "${jobs[@]}" | xargs -P "${PARALLEL:-2}" -L 1 bash -c \
-  "$BIN train-policy --task $TASK --reward \$0 --seed \$1 --steps $STEPS --eval-every 500 --eval-episodes 5 --learning-starts 250 --threads 1 \
+  "$BIN train-policy --task $TASK --reward \$0 --seed \$1 --steps $STEPS --eval-every ${EVAL_EVERY:-500} --eval-episodes ${EVAL_EPISODES:-5} --learning-starts ${LEARNING_STARTS:-250} --threads 1 \
    --out $OUT/$TASK/\$0/seed\$1 > $OUT/logs/$TASK-\$0-\$1.log 2>&1 && echo done \$0 \$1"
 $BIN compare "$OUT/$TASK"/*/seed* --out "$OUT/comparison-$TASK"

@@ -119,3 +119,25 @@ def test_interrupted_run_resumes_from_its_checkpoint(tmp_path):
     assert result["resumed_from"] == 32 and result["steps"] == 64
     assert [r["steps"] for r in read_eval_csv(tmp_path / "run" / "eval.csv")] == [0, 32, 64]
     assert (tmp_path / "run" / "sb3" / "from32" / "progress.csv").exists()
+
+
+@pytest.mark.slow
+def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
+    """scripts/sac_comparison.sh (the one command behind docs/results.md), at a tiny scale."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, OUT=str(tmp_path), EVAL_EVERY="8", EVAL_EPISODES="1", LEARNING_STARTS="8",
+               PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
+    proc = subprocess.run(["bash", str(root / "scripts" / "sac_comparison.sh"), "PegInHole-v1", "16", "0", "sparse", "engineered"],
+                          env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "done sparse 0" in proc.stdout and "done engineered 0" in proc.stdout
+    for reward in ("sparse", "engineered"):
+        assert [r["steps"] for r in read_eval_csv(tmp_path / "PegInHole-v1" / reward / "seed0" / "eval.csv")] == [0, 8, 16]
+    summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
+    assert {row["reward"] for row in summary["rows"]} == {"sparse", "engineered"}
+    assert (tmp_path / "comparison-PegInHole-v1" / "comparison.png").stat().st_size > 10_000
