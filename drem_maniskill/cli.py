@@ -83,6 +83,13 @@ def _cmd_examine(args) -> None:
     print(f"plot: {args.out}/examination.png, numbers: {args.out}/quality.json")
 
 
+def _cmd_run_script(args) -> None:
+    from drem_maniskill.launcher import run_script
+
+    extra = args.args[1:] if args.args[:1] == ["--"] else args.args
+    run_script(args.script, extra)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``drem-maniskill`` command."""
     from drem_maniskill.demo import TASKS
@@ -157,6 +164,11 @@ def build_parser() -> argparse.ArgumentParser:
     from drem_maniskill.rl.__main__ import add_subcommands
 
     add_subcommands(sub)  # train-policy, compare (drem_maniskill/rl, docs/rl.md)
+
+    p = sub.add_parser("run-script", help="run a ManiSkill script (e.g. ppo_cpu.py) with our env ids registered")
+    p.add_argument("script", help="the script, e.g. ManiSkill's examples/baselines/ppo/ppo_cpu.py")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="-- then the script's own arguments")
+    p.set_defaults(func=_cmd_run_script)
     return parser
 
 

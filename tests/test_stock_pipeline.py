@@ -105,3 +105,31 @@ def test_stock_states_replay_a_step_through_the_adapter():
         assert adapter.ee_state().shape == (1, 8)
     finally:
         env.close()
+
+
+@pytest.mark.slow
+def test_register_drem_env_makes_drem_the_stock_tasks_default(stock_pipeline, tmp_path):
+    from mani_skill.vector.wrappers.gymnasium import ManiSkillVectorEnv
+
+    from drem_maniskill import register_drem_env
+    from drem_maniskill.drem.wrapper import DREMRewardWrapper
+
+    env_id = register_drem_env(STOCK, stock_pipeline["checkpoint"])
+    assert env_id == "PegInsertionSide-DREM-v1"
+    kwargs = dict(obs_mode="state", control_mode="pd_ee_delta_pose")
+    alias = ManiSkillVectorEnv(gym.make(env_id, **kwargs), auto_reset=False, ignore_terminations=True)
+    wrapped = DREMRewardWrapper(gym.make(STOCK, **kwargs), stock_pipeline["checkpoint"])
+    try:
+        assert alias.unwrapped.reward_mode == "drem"
+        rewards = []
+        for env in (alias, wrapped):
+            env.reset(seed=2)
+            _, reward, _, _, info = env.step(torch.tensor([[0.2, 0.0, -0.2, 0.0, 0.0, 0.0, 1.0]]))
+            rewards.append(reward)
+            assert "success" in info
+        # The registered id and the wrapper give the same DREM reward for the same step.
+        torch.testing.assert_close(rewards[0].float(), rewards[1].float(), atol=1e-4, rtol=1e-4)
+    finally:
+        alias.close(), wrapped.close()
+    with pytest.raises(ValueError, match="trained on 'PegInsertionSide-v1', not 'PlugCharger-v1'"):
+        register_drem_env("PlugCharger-v1", stock_pipeline["checkpoint"])
