@@ -4,8 +4,10 @@ ManiSkill's baselines and tools call ``gym.make(args.env_id)`` after importing o
 so our ids are unknown to them. The launcher imports ``drem_maniskill`` (registering
 ``PegInHole-v1``, ``USBInsertion-v1`` and the ``*-DREM-v1`` aliases) and then runs the script as
 ``__main__`` with ``sys.argv = [SCRIPT, *ARGS]``, exactly as ``python SCRIPT ARGS`` would.
-Scripts that pass the id straight to ``gym.make`` also take ``drem_maniskill:PegInHole-DREM-v1``
-without the launcher.
+Worker processes started with the ``forkserver`` context (ManiSkill's ``ppo_cpu.py``) get the
+plugin too, through the fork server's preload list; under ``spawn`` workers, or without the
+launcher, pass the id as ``drem_maniskill:PegInHole-DREM-v1`` (gymnasium imports the module in
+every process that makes the env).
 """
 
 from __future__ import annotations
@@ -20,7 +22,13 @@ def run_script(script: str, args: list) -> None:
     path = Path(script)
     if not path.is_file():
         raise FileNotFoundError(f"script {script} not found")
+    import multiprocessing
+
     import drem_maniskill  # noqa: F401  (registers the ids before the script looks them up)
+
+    # Vector envs in worker processes (ppo_cpu.py: AsyncVectorEnv with "forkserver") make their
+    # envs in processes forked from the fork server, which imports these modules first.
+    multiprocessing.set_forkserver_preload(["drem_maniskill"])
 
     old_argv, old_path = sys.argv, list(sys.path)
     sys.argv = [str(path), *args]

@@ -22,16 +22,31 @@ STAND_IN = textwrap.dedent('''
     import mani_skill.envs  # noqa: F401  (what ManiSkill's scripts import; not our plugin)
     import torch
 
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--env_id", required=True)
-    parser.add_argument("--steps", type=int, default=2)
-    args = parser.parse_args()
-    env = gym.make(args.env_id, obs_mode="state", num_envs=1)
-    env.reset(seed=0)
-    for _ in range(args.steps):
-        _, reward, _, _, info = env.step(torch.zeros(env.action_space.shape))
-    print(f"__name__={__name__} reward_mode={env.unwrapped.reward_mode} reward={float(reward[0]):.4f} "
-          f"success={bool(info['success'][0])}")
+    def main():
+        parser = argparse.ArgumentParser()
+        parser.add_argument("--env_id", required=True)
+        parser.add_argument("--steps", type=int, default=2)
+        parser.add_argument("--forkserver", action="store_true", help="make the env in a worker, as ppo_cpu.py does")
+        args = parser.parse_args()
+        if args.forkserver:
+            from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
+
+            make = lambda: CPUGymWrapper(gym.make(args.env_id, obs_mode="state"))  # noqa: E731
+            workers = gym.vector.AsyncVectorEnv([make], context="forkserver")
+            workers.reset(seed=0)
+            _, reward, *_ = workers.step(workers.action_space.sample() * 0)
+            print(f"worker reward={float(reward[0]):.4f}")
+            workers.close()
+        env = gym.make(args.env_id, obs_mode="state", num_envs=1)
+        env.reset(seed=0)
+        for _ in range(args.steps):
+            _, reward, _, _, info = env.step(torch.zeros(env.action_space.shape))
+        print(f"__name__={__name__} reward_mode={env.unwrapped.reward_mode} reward={float(reward[0]):.4f} "
+              f"success={bool(info['success'][0])}")
+
+
+    if __name__ == "__main__":  # worker processes import this file too
+        main()
 ''')
 
 
@@ -76,10 +91,11 @@ def test_launcher_runs_a_script_that_knows_only_maniskill(tmp_path):
     script.write_text(STAND_IN)
     plain = subprocess.run([sys.executable, str(script), "--env_id", "PegInHole-DREM-v1"], capture_output=True, text=True)
     assert plain.returncode != 0 and "PegInHole-DREM" in plain.stderr  # ManiSkill alone does not know our ids
-    out = subprocess.run([str(BIN), "run-script", str(script), "--", "--env_id", "PegInHole-DREM-v1", "--steps", "3"],
+    out = subprocess.run([str(BIN), "run-script", str(script), "--", "--env_id", "PegInHole-DREM-v1", "--steps", "3", "--forkserver"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "__name__=__main__ reward_mode=drem" in out.stdout and "success=False" in out.stdout
+    assert "worker reward=" in out.stdout  # the fork server's workers know our ids too
     # The gymnasium `module:EnvId` form needs no launcher.
     direct = subprocess.run([sys.executable, str(script), "--env_id", "drem_maniskill:USBInsertion-DREM-v1"],
                             capture_output=True, text=True, timeout=300)
