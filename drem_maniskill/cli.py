@@ -108,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("record-expert", help="record scripted-expert episodes in ManiSkill's .h5/.json format")
     p.add_argument("--task", default="PegInHole-v1",
-                   help="env id: ours, PegInsertionSide-v1 or PlugCharger-v1 (default: %(default)s)")
+                   help="env id (default: %(default)s)")
     p.add_argument("--out", default="outputs/expert", help="output folder (default: %(default)s)")
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="first episode seed (default: %(default)s)")

@@ -61,7 +61,8 @@ def record_expert(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     env_kwargs = dict(env_kwargs or {})
-    # The scripted experts of ManiSkill's own tasks command end-effector deltas, not their default.
+    # On ManiSkill's own tasks record with end-effector deltas (their default is joint deltas), the
+    # control mode DREM's sampler and examination share with our tasks.
     if not _is_ours(env_id) and "control_mode" not in env_kwargs:
         env_kwargs["control_mode"] = "pd_ee_delta_pose"
     env = gym.make(env_id, obs_mode=obs_mode, render_mode="rgb_array" if save_video else None, **env_kwargs)

@@ -208,8 +208,7 @@ _POLICIES: dict[str, type[ScriptedPolicy]] = {
 def get_policy(name: str, env, seed: int = 0) -> Callable:
     """A batched scripted policy ``policy(obs) -> action [num_envs, action_dim]`` for ``env``.
 
-    On ManiSkill's own tasks (``PegInsertionSide-v1``, ``PlugCharger-v1``) ``expert`` is the
-    scripted expert of ``drem_maniskill.stock_experts`` and ``random`` uniform random actions.
+    On other ManiSkill tasks only ``random`` (uniform random actions) exists.
     """
     from drem_maniskill.envs.insertion_base import InsertionEnv
 
@@ -217,9 +216,10 @@ def get_policy(name: str, env, seed: int = 0) -> Callable:
         if name == "random":
             return _UniformRandom(env, seed)
         if name in ("expert", "direct_success"):
-            from drem_maniskill.stock_experts import get_stock_expert
-
-            return get_stock_expert(env, seed=seed)
+            raise ValueError(
+                f"no scripted expert for {env.unwrapped.spec.id} in this version; record your own demo with "
+                "ManiSkill's RecordEpisode (obs_mode='rgb', record_env_state=True) and pass it to `drem-maniskill sample`"
+            )
         raise ValueError(f"scripted policy {name!r} exists only for our insertion tasks; on {env.unwrapped.spec.id} use expert or random")
     if name not in _POLICIES:
         raise ValueError(f"unknown scripted policy {name!r}; choose one of {list(POLICY_NAMES)}")

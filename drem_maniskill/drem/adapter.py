@@ -8,9 +8,8 @@ same pipeline runs on our insertion tasks and on any ManiSkill task (``PegInsert
   history, the task's ``in_start_region()``, and states that already replay a step;
 * **any other ManiSkill env**: the first non-wrist camera as ``fixed`` (``base_camera`` in
   ManiSkill's tabletop tasks) and ``hand_camera`` as ``wrist`` when the robot has one
-  (``panda_wristcam``), images only (no F/T sensor), and a start region from
-  ``drem_maniskill.stock_experts`` when it knows the task, else "the end-effector within
-  ``radius`` of the expert's first pose, gripper opening within 2 cm of the expert's".
+  (``panda_wristcam``), images only (no F/T sensor), and as start region "the end-effector
+  within ``radius`` of the expert's first pose, gripper opening within 2 cm of the expert's".
 
 States: ManiSkill's ``set_state_dict`` restores bodies and joints but not the joint drive
 targets that the PD controllers hold, so a restored state does not replay the next step.
@@ -156,13 +155,4 @@ def adapter_for(env) -> EnvAdapter:
     u = env.unwrapped
     if _is_insertion_env(u):
         return EnvAdapter(u, dict(OUR_CAMERAS), has_ft=True, start_fn=lambda e: e.in_start_region())
-    start_fn = None
-    try:
-        from drem_maniskill import stock_experts
-
-        env_id = u.spec.id if u.spec else ""
-        if env_id in getattr(stock_experts, "STOCK_EXPERTS", {}) and hasattr(stock_experts, "start_region"):
-            start_fn = stock_experts.start_region
-    except ImportError:
-        pass
-    return EnvAdapter(u, camera_map_for(u), has_ft=hasattr(u, "ft"), start_fn=start_fn, gripper_idx=_gripper_joint_indices(u))
+    return EnvAdapter(u, camera_map_for(u), has_ft=hasattr(u, "ft"), gripper_idx=_gripper_joint_indices(u))
