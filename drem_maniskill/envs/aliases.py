@@ -57,7 +57,9 @@ def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[st
         raise ValueError(f"{checkpoint} was trained on {header.get('env_id')!r}, not {base_env_id!r}")
     spec = REGISTERED_ENVS[base_env_id]
     base = spec.cls
-    new_env_id = new_env_id or base_env_id.replace("-v", "-DREM-v")
+    if new_env_id is None:
+        name, sep, version = base_env_id.rpartition("-v")
+        new_env_id = f"{name}-DREM-v{version}" if sep else f"{base_env_id}-DREM"
     default_checkpoint = str(Path(checkpoint).resolve())
 
     class StockDREM(base):
@@ -82,7 +84,6 @@ def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[st
             images = self._adapter.images(obs)
             batch = {m: images[m] for m in self._drem.model.config.cameras}
             return self._drem(batch).to(self.device)
-
 
     StockDREM.__name__ = StockDREM.__qualname__ = f"{base.__name__}DREM"
     # Registering the same id again (another checkpoint) replaces the old one.
