@@ -11,9 +11,17 @@ make that default DREM:
   a stock ManiSkill task with a ``drem`` reward mode added and made the default, reading the
   checkpoint's cameras (rendered once per step when the obs has no images).
 
-The aliases are subclasses registered in ManiSkill's registry (not gymnasium wrappers), so
-``ManiSkillVectorEnv``, ``CPUGymWrapper`` and the GPU sim treat them as ordinary ManiSkill envs,
-and ``info["success"]`` is the task's own. Their ``env_id`` stays the base task's, so
+Why subclasses and not ``DREMRewardWrapper`` in the registry: ``register_env`` registers a
+``BaseEnv`` subclass (it refuses anything else), and gymnasium's entry point is ManiSkill's
+``make``, which instantiates that class. ManiSkill's scripts then wrap what ``gym.make`` returns
+(``ManiSkillVectorEnv``, ``CPUGymWrapper``, ``FlattenRGBDObservationWrapper``,
+``RecordEpisode``) and several of them read ``env.unwrapped`` (reward mode, ``num_envs``,
+device, ``_sensors``): a gymnasium wrapper under those would be skipped by ``.unwrapped`` and
+would change the order of wrappers the scripts expect. A subclass keeps the env a plain
+ManiSkill env whose ``get_reward`` gives DREM, so the batched reward tensor, ``info["success"]``
+(the task's own ``evaluate``), the GPU sim and the time limit behave as on the base task. The
+reward itself is computed by ``DREMRewardWrapper.reward`` around the env, so the checkpoint's
+camera map and checks are the wrapper's. The aliases' ``env_id`` stays the base task's, so
 checkpoints trained on the base task fit.
 """
 
@@ -27,7 +35,14 @@ from mani_skill.utils.registration import REGISTERED_ENVS, register_env
 from drem_maniskill.envs.peg_in_hole import PegInHoleEnv
 from drem_maniskill.envs.usb_insertion import USBInsertionEnv
 
+# Naming: ManiSkill ids are <Task>-v<N>; the reward goes into the task part, the version stays.
 DREM_ALIASES = {"PegInHole-DREM-v1": "PegInHole-v1", "USBInsertion-DREM-v1": "USBInsertion-v1"}
+
+
+def drem_env_id(base_env_id: str) -> str:
+    """The DREM-by-default id of ``base_env_id``: ``-DREM`` before its last ``-vN`` suffix."""
+    name, sep, version = base_env_id.rpartition("-v")
+    return f"{name}-DREM-v{version}" if sep and version.isdigit() else f"{base_env_id}-DREM"
 
 
 def _drem_default(base_cls, alias: str):
@@ -46,8 +61,8 @@ for _alias, _base, _cls in (("PegInHole-DREM-v1", "PegInHole-v1", PegInHoleEnv),
     register_env(_alias, max_episode_steps=REGISTERED_ENVS[_base].max_episode_steps)(_drem_default(_cls, _alias))
 
 
-def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[str] = None) -> str:
-    """Register ``<Base>-DREM-vN``: a stock ManiSkill task whose default reward is DREM from ``checkpoint``."""
+def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[str] = None, **kwargs) -> str:
+    """Register a stock ManiSkill task with DREM from ``checkpoint`` as its default reward; returns the new id."""
     from drem_maniskill.drem.checkpoint import load_checkpoint
 
     if base_env_id not in REGISTERED_ENVS:
@@ -57,35 +72,34 @@ def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[st
         raise ValueError(f"{checkpoint} was trained on {header.get('env_id')!r}, not {base_env_id!r}")
     spec = REGISTERED_ENVS[base_env_id]
     base = spec.cls
-    if new_env_id is None:
-        name, sep, version = base_env_id.rpartition("-v")
-        new_env_id = f"{name}-DREM-v{version}" if sep else f"{base_env_id}-DREM"
+    new_env_id = new_env_id or drem_env_id(base_env_id)
+    # Absolute: a script may chdir, and worker processes may start elsewhere.
     default_checkpoint = str(Path(checkpoint).resolve())
 
     class StockDREM(base):
         SUPPORTED_REWARD_MODES = tuple(base.SUPPORTED_REWARD_MODES) + ("drem",)
         env_id = base_env_id  # what the checkpoint's header must name
 
-        def __init__(self, *args, reward_mode: Optional[str] = "drem", drem_checkpoint: str = default_checkpoint, **kwargs):
+        def __init__(self, *args, reward_mode: Optional[str] = "drem", drem_checkpoint: str = default_checkpoint, **kw):
             self.drem_checkpoint = drem_checkpoint
             self._drem = None
-            super().__init__(*args, reward_mode=reward_mode, **kwargs)
+            super().__init__(*args, reward_mode=reward_mode, **kw)
+            if self.reward_mode == "drem":
+                from drem_maniskill.drem.wrapper import DREMRewardWrapper
+
+                # Built now so a checkpoint that does not fit (cameras, env) fails at gym.make.
+                self._drem = DREMRewardWrapper(self, self.drem_checkpoint)
 
         def get_reward(self, obs, action, info):
             """DREM ``R(s)`` when ``reward_mode="drem"``, else the task's own reward."""
             if self.reward_mode != "drem":
                 return super().get_reward(obs, action, info)
-            from drem_maniskill.drem.adapter import adapter_for
-            from drem_maniskill.drem.reward import DREMReward
-
-            if self._drem is None:
-                self._drem = DREMReward.from_checkpoint(self.drem_checkpoint, env=self)
-                self._adapter = adapter_for(self)
-            images = self._adapter.images(obs)
-            batch = {m: images[m] for m in self._drem.model.config.cameras}
-            return self._drem(batch).to(self.device)
+            return self._drem.reward(obs).to(self.device)
 
     StockDREM.__name__ = StockDREM.__qualname__ = f"{base.__name__}DREM"
-    # Registering the same id again (another checkpoint) replaces the old one.
-    register_env(new_env_id, max_episode_steps=spec.max_episode_steps, override=True)(StockDREM)
+    StockDREM.__doc__ = f"{base.__name__} with a 'drem' reward mode, the default, from {default_checkpoint}."
+    # Registering the same id again (another checkpoint) replaces the old one. The base spec's
+    # default kwargs come first so the alias makes the same env as the base id.
+    register_env(new_env_id, max_episode_steps=spec.max_episode_steps, override=True,
+                 asset_download_ids=list(spec.asset_download_ids or []), **{**spec.default_kwargs, **kwargs})(StockDREM)
     return new_env_id
