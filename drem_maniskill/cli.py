@@ -84,10 +84,10 @@ def _cmd_examine(args) -> None:
 
 
 def _cmd_run_script(args) -> None:
-    from drem_maniskill.launcher import run_script
+    from drem_maniskill.launcher import run_module, run_script
 
     extra = args.args[1:] if args.args[:1] == ["--"] else args.args
-    run_script(args.script, extra)
+    (run_module if args.module else run_script)(args.script, extra)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -166,7 +166,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_subcommands(sub)  # train-policy, compare (drem_maniskill/rl, docs/rl.md)
 
     p = sub.add_parser("run-script", help="run a ManiSkill script (e.g. ppo_cpu.py) with our env ids registered")
-    p.add_argument("script", help="the script, e.g. ManiSkill's examples/baselines/ppo/ppo_cpu.py")
+    p.add_argument("script", help="the script, e.g. ManiSkill's examples/baselines/ppo/ppo_cpu.py (with -m: a module)")
+    p.add_argument("-m", "--module", action="store_true",
+                   help="SCRIPT is a module, run as `python -m`, e.g. mani_skill.examples.benchmarking.gpu_sim")
     p.add_argument("args", nargs=argparse.REMAINDER, help="-- then the script's own arguments")
     p.set_defaults(func=_cmd_run_script)
     return parser

@@ -1,4 +1,4 @@
-"""DREM-by-default env ids and the run-script launcher for ManiSkill's own scripts."""
+"""``drem-maniskill run-script``: ManiSkill-style scripts that know only ManiSkill, run on our ids."""
 
 from __future__ import annotations
 
@@ -7,11 +7,10 @@ import sys
 import textwrap
 from pathlib import Path
 
-import gymnasium as gym
 import pytest
-import torch
 
-import drem_maniskill  # noqa: F401
+from drem_maniskill.cli import main
+from drem_maniskill.launcher import run_module, run_script
 
 BIN = Path(sys.executable).parent / "drem-maniskill"
 
@@ -49,40 +48,37 @@ STAND_IN = textwrap.dedent('''
         main()
 ''')
 
-
-def test_alias_defaults_to_drem_and_matches_the_task_with_reward_mode_drem():
-    alias = gym.make("PegInHole-DREM-v1")
-    plain = gym.make("PegInHole-v1", reward_mode="drem")
-    try:
-        assert alias.unwrapped.reward_mode == "drem" and alias.unwrapped.env_id == "PegInHole-v1"
-        rewards = []
-        for env in (alias, plain):
-            env.reset(seed=3)
-            _, reward, _, _, info = env.step(torch.full((1, 6), 0.3))
-            rewards.append(reward)
-            assert "success" in info
-        torch.testing.assert_close(rewards[0], rewards[1])
-    finally:
-        alias.close(), plain.close()
-    sparse = gym.make("USBInsertion-DREM-v1", reward_mode="sparse")
-    try:
-        sparse.reset(seed=0)
-        _, reward, *_ = sparse.step(torch.zeros(1, 6))
-        assert sparse.unwrapped.reward_mode == "sparse" and float(reward[0]) == 0.0
-    finally:
-        sparse.close()
+ECHO = textwrap.dedent('''
+    import sys
+    import helper_beside_the_script  # importable only if the script's folder is on sys.path
+    print("argv", sys.argv[1:], "name", __name__, "helper", helper_beside_the_script.VALUE)
+    if "--fail" in sys.argv:
+        raise SystemExit(3)
+''')
 
 
-def test_alias_under_maniskill_vector_env():
-    from mani_skill.vector.wrappers.gymnasium import ManiSkillVectorEnv
+def test_run_script_sets_argv_main_and_the_scripts_folder_then_restores_them(tmp_path, capsys):
+    script = tmp_path / "echo.py"
+    script.write_text(ECHO)
+    (tmp_path / "helper_beside_the_script.py").write_text("VALUE = 42\n")
+    argv, path = list(sys.argv), list(sys.path)
+    assert main(["run-script", str(script), "--", "--env_id", "PegInHole-DREM-v1", "-x"]) == 0
+    assert "argv ['--env_id', 'PegInHole-DREM-v1', '-x'] name __main__ helper 42" in capsys.readouterr().out
+    assert sys.argv == argv and sys.path == path
+    with pytest.raises(SystemExit) as err:  # the script's own exit code is the command's
+        run_script(str(script), ["--fail"])
+    assert err.value.code == 3 and sys.argv == argv
+    with pytest.raises(FileNotFoundError, match="nope.py not found"):
+        run_script(str(tmp_path / "nope.py"), [])
 
-    env = ManiSkillVectorEnv(gym.make("PegInHole-DREM-v1", obs_mode="state"), auto_reset=True, ignore_terminations=True)
-    try:
-        env.reset(seed=0)
-        _, reward, _, _, info = env.step(torch.zeros(1, 6))
-        assert reward.shape == (1,) and -2.0 < float(reward[0]) < 1.5
-    finally:
-        env.close()
+
+def test_run_module_runs_a_module_as_main(tmp_path, capsys, monkeypatch):
+    (tmp_path / "echo_module.py").write_text(ECHO.replace("import helper_beside_the_script", "import types; helper_beside_the_script = types.SimpleNamespace(VALUE=7)"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["run-script", "-m", "echo_module", "--", "-e", "PegInHole-DREM-v1"]) == 0
+    assert "argv ['-e', 'PegInHole-DREM-v1'] name __main__ helper 7" in capsys.readouterr().out
+    with pytest.raises(FileNotFoundError, match="module no_such.module not found"):
+        run_module("no_such.module", [])
 
 
 @pytest.mark.slow
