@@ -34,7 +34,7 @@ STAND_IN = textwrap.dedent('''
             workers = gym.vector.AsyncVectorEnv([make], context="forkserver")
             workers.reset(seed=0)
             _, reward, *_ = workers.step(workers.action_space.sample() * 0)
-            print(f"worker reward={float(reward[0]):.4f}")
+            print(f"worker reward_mode={workers.get_attr('reward_mode')[0]} reward={float(reward[0]):.4f}")
             workers.close()
         env = gym.make(args.env_id, obs_mode="state", num_envs=1)
         env.reset(seed=0)
@@ -91,7 +91,7 @@ def test_launcher_runs_a_script_that_knows_only_maniskill(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "__name__=__main__ reward_mode=drem" in out.stdout and "success=False" in out.stdout
-    assert "worker reward=" in out.stdout  # the fork server's workers know our ids too
+    assert "worker reward_mode=drem reward=" in out.stdout  # the fork server's workers know our ids too
     # The gymnasium `module:EnvId` form needs no launcher.
     direct = subprocess.run([sys.executable, str(script), "--env_id", "drem_maniskill:USBInsertion-DREM-v1"],
                             capture_output=True, text=True, timeout=300)
