@@ -1,0 +1,457 @@
+"""Scripted experts for ManiSkill's own PegInsertionSide-v1 and PlugCharger-v1 (no motion planner).
+
+The experts follow the phases of ManiSkill's motion-planning solutions
+(``mani_skill/examples/motionplanning/panda/solutions/``): reach above the grasp pose, descend,
+close the gripper, lift, move to a pre-insertion pose aligned with the hole / receptacle, insert
+along its axis. Instead of planning joint paths they servo the TCP towards each phase's target
+pose with ``control_mode="pd_ee_delta_pose"``, reading privileged state from ``env.unwrapped``.
+
+Controller facts this relies on (stock ``panda`` / ``panda_wristcam``, ManiSkill 3.0.1, checked
+empirically at 20 Hz control / 100 Hz physics):
+
+* action ``[dx, dy, dz, rx, ry, rz, gripper]`` in ``[-1, 1]``; translation in the robot root
+  frame (world axes here: the root is only translated), scaled by 0.1 m;
+* rotation about the TCP, root-aligned, scaled by ``rot_lower = -0.1`` rad, i.e. **+1 turns by
+  -0.1 rad** (``PDEEPoseController._clip_and_scale_action``); the rotation part is clipped by norm;
+* targets are relative to the *current* TCP pose and the joint PD lags, so a full-scale command
+  moves only ~1.4 cm (or ~0.04 rad) per step; commanding the whole error each step (gain 1)
+  converges without overshoot to ~0.1 mm, larger gains oscillate;
+* gripper: +1 open (0.04 m per finger), -1 closed (target -0.01 m, squeezes what it holds).
+
+Targets are recomputed every step from the measured poses (the part's target pose times the
+measured part-to-TCP transform), so slip in the grasp is corrected on the way.
+
+Start region (for DREM's backward sampling), per stock task: the TCP within ``START_RADIUS``
+(6 cm) of the TCP position of the task's noise-free initial joint configuration, and the gripper
+open (finger gap >= ``START_MIN_GAP``). The stock resets add N(0, 0.02 rad) to every joint,
+which scatters the TCP up to 4.7 cm from that point over seeds 0-49; 6 cm keeps every reset inside.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Iterable
+
+import numpy as np
+import torch
+
+from mani_skill.utils.geometry.rotation_conversions import (
+    axis_angle_to_quaternion,
+    quaternion_invert,
+    quaternion_multiply,
+    quaternion_to_axis_angle,
+)
+from mani_skill.utils.structs import Pose
+
+POS_SCALE = 0.1  # m per unit action (pos_lower/upper of the stock pd_ee_delta_pose)
+ROT_SCALE = -0.1  # rad per unit action: rot_lower, negative in ManiSkill 3.0.1
+GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
+
+START_RADIUS = 0.06  # m around the nominal initial TCP position
+START_MIN_GAP = 0.07  # m, finger gap (sum of both finger joints; fully open is 0.08)
+
+# TCP position (world frame) of the noise-free initial qpos; both tasks put the robot root at
+# (-0.615, 0, 0) and share joints 1-6 (joint 7 only spins the hand about the TCP axis).
+NOMINAL_TCP_POS = {
+    "PegInsertionSide-v1": (0.0, 0.0, 0.1698),
+    "PlugCharger-v1": (0.0, 0.0, 0.1698),
+}
+
+
+# ----------------------------------------------------------------------------- pose helpers
+def _pose(p: torch.Tensor, q: torch.Tensor | None = None) -> Pose:
+    """A batched Pose from positions ``[B, 3]`` and optional wxyz quaternions ``[B, 4]``."""
+    if q is None:
+        q = torch.zeros(p.shape[0], 4, device=p.device, dtype=p.dtype)
+        q[:, 0] = 1
+    return Pose.create_from_pq(p, q)
+
+
+def _rot_error(q_target: torch.Tensor, q_current: torch.Tensor) -> torch.Tensor:
+    """Rotation vector ``[B, 3]`` (world axes) turning ``q_current`` into ``q_target``."""
+    q = quaternion_multiply(q_target, quaternion_invert(q_current))
+    # Shortest way round: q and -q are the same rotation.
+    q = torch.where(q[:, :1] < 0, -q, q)
+    return quaternion_to_axis_angle(q)
+
+
+def tcp_pose(env) -> torch.Tensor:
+    """TCP pose ``[B, 7]`` (position, wxyz quaternion) of a ManiSkill env's agent."""
+    return env.unwrapped.agent.tcp.pose.raw_pose
+
+
+def _finger_gap(env) -> torch.Tensor:
+    """Sum of the two finger joint positions ``[B]`` (0.08 m fully open)."""
+    return env.unwrapped.agent.robot.get_qpos()[:, -2:].sum(-1)
+
+
+def _start_region(env, env_id: str) -> torch.Tensor:
+    """Bool ``[B]``: TCP within START_RADIUS of the task's nominal start and the gripper open."""
+    u = env.unwrapped
+    ref = torch.tensor(NOMINAL_TCP_POS[env_id], device=u.device, dtype=torch.float32)
+    near = torch.linalg.norm(u.agent.tcp.pose.p - ref, dim=1) <= START_RADIUS
+    return near & (_finger_gap(env) >= START_MIN_GAP)
+
+
+def peg_insertion_side_start_region(env) -> torch.Tensor:
+    """Start-region predicate ``[B]`` for PegInsertionSide-v1 (see the module docstring)."""
+    return _start_region(env, "PegInsertionSide-v1")
+
+
+def plug_charger_start_region(env) -> torch.Tensor:
+    """Start-region predicate ``[B]`` for PlugCharger-v1 (see the module docstring)."""
+    return _start_region(env, "PlugCharger-v1")
+
+
+# ----------------------------------------------------------------------------- experts
+class _StockExpert:
+    """Base: batched per-env phase and phase clock, reset at each env's first step, TCP servo."""
+
+    env_id: str = ""
+    ki = 0.3  # integral gain per step of the fine phases
+    fine_from = 5  # first phase with integral action
+
+    def __init__(self, env, seed: int = 0, action_noise: float = 0.0):
+        self.env = env.unwrapped
+        if self.env.control_mode != "pd_ee_delta_pose":
+            raise ValueError(
+                f"stock experts command end-effector deltas; make the env with "
+                f"control_mode='pd_ee_delta_pose' (got {self.env.control_mode!r})"
+            )
+        self.device = self.env.device
+        self.n = self.env.num_envs
+        # Deterministic unless action_noise > 0; the seed fixes that noise.
+        self.action_noise = float(action_noise)
+        self.generator = torch.Generator(device="cpu").manual_seed(int(seed))
+        self.phase = torch.zeros(self.n, dtype=torch.long, device=self.device)
+        self.clock = torch.zeros(self.n, dtype=torch.long, device=self.device)
+        self._grasp_raw = torch.zeros(self.n, 7, device=self.device)
+        # Integral of the pose error (world axes), for the fine phases: the held part's weight
+        # leaves a steady offset of a few mm under the arm's PD that the proportional servo
+        # never removes.
+        self._i_pos = torch.zeros(self.n, 3, device=self.device)
+        self._i_rot = torch.zeros(self.n, 3, device=self.device)
+
+    def __call__(self, obs=None) -> torch.Tensor:
+        """Action ``[num_envs, 7]`` for the current state (``obs`` is not needed: state is privileged)."""
+        fresh = self.env.elapsed_steps.to(self.device) == 0
+        self.phase[fresh] = 0
+        self.clock[fresh] = 0
+        old = self.phase.clone()
+        self._start = old  # transitions test the phase the step began in: one phase per step
+        action = self.act()
+        # Count steps spent in the current phase (timeouts, gripper closing time).
+        same = self.phase == old
+        self.clock = torch.where(same, self.clock + 1, torch.zeros_like(self.clock))
+        # The integrals carry over between fine phases: resetting them would drop the part by
+        # its sag just as it enters the hole.
+        restart = (~same & (self.phase <= self.fine_from)) | fresh
+        self._i_pos[restart] = 0
+        self._i_rot[restart] = 0
+        if self.action_noise > 0:
+            noise = torch.randn(self.n, 6, generator=self.generator).to(self.device) * self.action_noise
+            action[:, :6] = (action[:, :6] + noise).clamp(-1, 1)
+        return action
+
+    def act(self) -> torch.Tensor:
+        raise NotImplementedError
+
+    def servo(self, target: Pose, gripper: torch.Tensor, speed: float = 1.0, integral: torch.Tensor | None = None) -> torch.Tensor:
+        """Action moving the TCP towards ``target`` (world frame): the whole error per step, capped.
+
+        The translation is scaled (not clipped per axis) so the TCP moves in a straight line.
+        Where ``integral`` (bool ``[B]``) is set, the accumulated error is added (PI control).
+        """
+        tcp = self.env.agent.tcp.pose
+        e_pos = target.p - tcp.p
+        e_rot = _rot_error(target.q, tcp.q)
+        if integral is not None:
+            m = integral[:, None].float()
+            self._i_pos = (self._i_pos + m * e_pos).clamp(-0.05, 0.05)
+            self._i_rot = (self._i_rot + m * e_rot).clamp(-0.2, 0.2)
+            e_pos = e_pos + self.ki * m * self._i_pos
+            e_rot = e_rot + self.ki * m * self._i_rot
+        v = e_pos / POS_SCALE
+        v = v / (v.abs().amax(dim=1, keepdim=True) / speed).clamp(min=1.0)
+        w = e_rot / ROT_SCALE
+        w = w / w.norm(dim=1, keepdim=True).clamp(min=1.0)
+        return torch.cat([v, w, gripper[:, None]], dim=1)
+
+    def tcp_target_for(self, obj_pose: Pose, obj_target: Pose) -> Pose:
+        """TCP pose that puts the held object at ``obj_target``, keeping the measured grasp."""
+        grasp = obj_pose.inv() * self.env.agent.tcp.pose
+        return obj_target * grasp
+
+    def pose_error(self, a: Pose, b: Pose) -> tuple[torch.Tensor, torch.Tensor]:
+        """Position error norm and rotation angle ``[B]`` between two poses."""
+        return torch.linalg.norm(a.p - b.p, dim=1), _rot_error(a.q, b.q).norm(dim=1)
+
+    def dispatch(self, targets: list) -> torch.Tensor:
+        """Action ``[B, 7]``: each env servos to the target of its phase (PI in the fine phases)."""
+        action = torch.zeros(self.n, 7, device=self.device)
+        fine = self.phase >= self.fine_from
+        for ph, target, grip in targets:
+            mask = self.phase == ph
+            if mask.any():
+                action[mask] = self.servo(target, grip, integral=mask & fine)[mask]
+        return action
+
+    def latched_grasp(self) -> Pose:
+        """The grasp pose, tracked until the gripper starts closing, then frozen.
+
+        Once the part is held it moves with the hand, so a grasp pose recomputed from it would
+        run away from the lift target.
+        """
+        fresh = self.phase <= 1
+        if fresh.any():
+            self._grasp_raw[fresh] = self.grasp_pose().raw_pose[fresh]
+        return Pose.create(self._grasp_raw.clone())
+
+    def _advance(self, cond: torch.Tensor, frm: int, to: int) -> None:
+        self.phase = torch.where((self._start == frm) & cond, torch.full_like(self.phase, to), self.phase)
+
+
+def _top_down_grasp_q(closing: torch.Tensor) -> torch.Tensor:
+    """wxyz ``[B, 4]`` of a TCP frame approaching straight down (z = -world z) closing along ``closing``.
+
+    Same frame as ``Panda.build_grasp_pose``: columns (closing x approaching, closing, approaching).
+    """
+    approaching = torch.zeros_like(closing)
+    approaching[:, 2] = -1
+    ortho = torch.cross(closing, approaching, dim=1)
+    rot = torch.stack([ortho, closing, approaching], dim=2)
+    from mani_skill.utils.geometry.rotation_conversions import matrix_to_quaternion
+
+    return matrix_to_quaternion(rot)
+
+
+class PegInsertionSideExpert(_StockExpert):
+    """Grasp the peg near its tail from above, carry it in front of the hole, push it in sideways.
+
+    Phases: 0 reach 5 cm above the grasp, 1 descend, 2 close, 3 lift, 4 align the peg 5 cm
+    before the entrance, 5 align it 1 cm before the entrance, 6 insert along the hole axis.
+    """
+
+    env_id = "PegInsertionSide-v1"
+    lift = 0.05
+    close_steps = 5
+    fine_from = 5  # phases with integral action
+
+    def grasp_pose(self) -> Pose:
+        """TCP grasp pose: top-down on the peg's axis, ``max(5 cm, L/2 + 1 cm)`` behind the centre."""
+        u = self.env
+        peg = u.peg.pose
+        half = u.peg_half_sizes
+        rot = peg.to_transformation_matrix()[:, :3, :3]
+        axis, side = rot[:, :, 0], rot[:, :, 1]
+        # Of the two closing directions, take the one closer to the hand's current y axis:
+        # the smaller turn of the wrist (what compute_grasp_info_by_obb does with target_closing).
+        tcp_y = self.env.agent.tcp.pose.to_transformation_matrix()[:, :3, 1]
+        side = torch.where((side * tcp_y).sum(1, keepdim=True) < 0, -side, side)
+        back = torch.clamp(half[:, 0] / 2 + 0.01, min=0.05)
+        p = peg.p - axis * back[:, None]
+        return _pose(p, _top_down_grasp_q(side))
+
+    def act(self) -> torch.Tensor:
+        u = self.env
+        n = self.n
+        tcp = u.agent.tcp.pose
+        open_ = torch.full((n,), GRIPPER_OPEN, device=self.device)
+        closed = torch.full((n,), GRIPPER_CLOSED, device=self.device)
+        half = u.peg_half_sizes[:, 0]
+
+        grasp = self.latched_grasp()
+        above = _pose(grasp.p + torch.tensor([0, 0, 0.05], device=self.device), grasp.q)
+        pe, re = self.pose_error(above, tcp)
+        # The open fingers straddle the peg with room to spare, so the last of the wrist turn
+        # can finish on the way down (the turn, not the travel, is what takes longest).
+        self._advance((pe < 0.01) & (re < 0.15), 0, 1)
+        pe, re = self.pose_error(grasp, tcp)
+        self._advance(((pe < 0.004) & (re < 0.05)) | (self.clock > 20), 1, 2)
+        self._advance(self.clock >= self.close_steps, 2, 3)
+        self._advance(tcp.p[:, 2] > grasp.p[:, 2] + self.lift * 0.6, 3, 4)
+
+        goal = u.goal_pose  # peg pose with its head at the hole centre
+        peg = u.peg.pose
+        far = goal * _pose(torch.stack([-half - 0.05, torch.zeros_like(half), torch.zeros_like(half)], 1))
+        near = goal * _pose(torch.stack([-half - 0.01, torch.zeros_like(half), torch.zeros_like(half)], 1))
+        pe, re = self.pose_error(far, peg)
+        self._advance((pe < 0.01) & (re < 0.05), 4, 5)
+        head_in_hole = (u.box_hole_pose.inv() * u.peg_head_pose).p
+        peg_in_goal = (goal.inv() * peg).p
+        lateral = torch.maximum(head_in_hole[:, 1:].abs().amax(1), peg_in_goal[:, 1:].abs().amax(1))
+        pe, re = self.pose_error(near, peg)
+        self._advance((pe < 0.003) & (lateral < 0.0015), 5, 6)
+
+        # Insert: walk the peg along the hole axis, 2 cm ahead of where it is, stopping 1 cm past
+        # the goal (success needs the head within 1.5 cm of the box centre); keep it centred.
+        x = (peg_in_goal[:, 0] + 0.02).clamp(max=0.01)
+        inserted = goal * _pose(torch.stack([x, torch.zeros_like(x), torch.zeros_like(x)], 1))
+
+        to_far = self.tcp_target_for(peg, far)
+        targets = [
+            (0, above, open_),
+            (1, grasp, open_),
+            (2, grasp, closed),
+            # Lift straight up, already turning the peg (about the vertical) towards the hole.
+            (3, _pose(grasp.p + torch.tensor([0, 0, self.lift], device=self.device), to_far.q), closed),
+            (4, to_far, closed),
+            (5, self.tcp_target_for(peg, near), closed),
+            (6, self.tcp_target_for(peg, inserted), closed),
+        ]
+        return self.dispatch(targets)
+
+
+class PlugChargerExpert(_StockExpert):
+    """Grasp the charger base from above (tilted 15 deg back), align with the receptacle, push in.
+
+    Phases: 0 reach 5 cm above the grasp, 1 descend, 2 close, 3 lift, 4 align the charger 5 cm
+    before the receptacle, 5 refine 1 cm before it, 6 insert along the receptacle axis.
+    """
+
+    env_id = "PlugCharger-v1"
+    lift = 0.05
+    close_steps = 5
+    fine_from = 5  # phases with integral action
+    grasp_tilt = np.deg2rad(15)
+
+    def grasp_pose(self) -> Pose:
+        """TCP grasp pose: top-down on the base centre, closing across it, tilted away from the pins."""
+        u = self.env
+        base = u.charger_base_pose
+        rot = base.to_transformation_matrix()[:, :3, :3]
+        # closing = -y of the charger makes the TCP x axis (closing x approaching) the pins'
+        # direction, so the positive tilt about TCP y leans the hand away from the receptacle.
+        closing = -rot[:, :, 1]
+        q = _top_down_grasp_q(closing)
+        tilt = torch.zeros(self.n, 3, device=self.device)
+        tilt[:, 1] = self.grasp_tilt
+        q = quaternion_multiply(q, axis_angle_to_quaternion(tilt))
+        return _pose(base.p, q)
+
+    def act(self) -> torch.Tensor:
+        u = self.env
+        n = self.n
+        tcp = u.agent.tcp.pose
+        open_ = torch.full((n,), GRIPPER_OPEN, device=self.device)
+        closed = torch.full((n,), GRIPPER_CLOSED, device=self.device)
+
+        grasp = self.latched_grasp()
+        # 5 cm back along the approach direction, as in the motion-planning solution.
+        approach = grasp.to_transformation_matrix()[:, :3, 2]
+        above = _pose(grasp.p - 0.05 * approach, grasp.q)
+        pe, re = self.pose_error(above, tcp)
+        self._advance((pe < 0.01) & (re < 0.05), 0, 1)
+        pe, re = self.pose_error(grasp, tcp)
+        self._advance(((pe < 0.003) & (re < 0.05)) | (self.clock > 15), 1, 2)
+        self._advance(self.clock >= self.close_steps, 2, 3)
+        self._advance(tcp.p[:, 2] > grasp.p[:, 2] + self.lift * 0.6, 3, 4)
+
+        goal = u.goal_pose
+        charger = u.charger.pose
+        zeros = torch.zeros(n, device=self.device)
+        far = goal * _pose(torch.stack([zeros - 0.05, zeros, zeros], 1))
+        near = goal * _pose(torch.stack([zeros - 0.01, zeros, zeros], 1))
+        pe, re = self.pose_error(far, charger)
+        self._advance((pe < 0.005) & (re < 0.03), 4, 5)
+        pe, re = self.pose_error(near, charger)
+        self._advance((pe < 0.0005) & (re < 0.01), 5, 6)
+
+        rel = (goal.inv() * charger).p
+        x = (rel[:, 0] + 0.01).clamp(max=0.0)
+        inserted = goal * _pose(torch.stack([x, zeros, zeros], 1))
+
+        lifted = _pose(grasp.p + torch.tensor([0, 0, self.lift], device=self.device), grasp.q)
+        targets = [
+            (0, above, open_),
+            (1, grasp, open_),
+            (2, grasp, closed),
+            (3, lifted, closed),
+            (4, self.tcp_target_for(charger, far), closed),
+            (5, self.tcp_target_for(charger, near), closed),
+            (6, self.tcp_target_for(charger, inserted), closed),
+        ]
+        return self.dispatch(targets)
+
+
+STOCK_EXPERTS: dict[str, type[_StockExpert]] = {
+    "PegInsertionSide-v1": PegInsertionSideExpert,
+    "PlugCharger-v1": PlugChargerExpert,
+}
+
+START_REGIONS: dict[str, Callable] = {
+    "PegInsertionSide-v1": peg_insertion_side_start_region,
+    "PlugCharger-v1": plug_charger_start_region,
+}
+
+
+def _env_id(env) -> str:
+    spec = getattr(env.unwrapped, "spec", None)
+    return spec.id if spec is not None else type(env.unwrapped).__name__
+
+
+def get_stock_expert(env, seed: int = 0, **kwargs) -> _StockExpert:
+    """The scripted expert for a stock ManiSkill env, picked by its id; ValueError otherwise."""
+    env_id = _env_id(env)
+    if env_id not in STOCK_EXPERTS:
+        raise ValueError(f"no stock scripted expert for {env_id!r}; supported: {sorted(STOCK_EXPERTS)}")
+    return STOCK_EXPERTS[env_id](env, seed=seed, **kwargs)
+
+
+def start_region(env) -> torch.Tensor:
+    """Start-region predicate ``[num_envs]`` of a supported stock env, picked by its id."""
+    env_id = _env_id(env)
+    if env_id not in START_REGIONS:
+        raise ValueError(f"no stock start region for {env_id!r}; supported: {sorted(START_REGIONS)}")
+    return START_REGIONS[env_id](env)
+
+
+def stock_success_rate(env_id: str, seeds: Iterable[int] = range(50), max_episode_steps: int | None = None, env_kwargs=None) -> dict:
+    """Run the stock expert once per seed; success rate, mean episode length and failed seeds."""
+    import gymnasium as gym
+
+    import mani_skill.envs  # noqa: F401  (registers the stock tasks)
+
+    kwargs = dict(obs_mode="state", control_mode="pd_ee_delta_pose")
+    kwargs.update(env_kwargs or {})
+    if max_episode_steps is not None:
+        kwargs["max_episode_steps"] = max_episode_steps
+    env = gym.make(env_id, **kwargs)
+    horizon = max_episode_steps or env.spec.max_episode_steps or gym.spec(env_id).max_episode_steps
+    policy = get_stock_expert(env)
+    seeds = [int(s) for s in seeds]
+    outcomes, lengths = [], []
+    try:
+        for seed in seeds:
+            obs, _ = env.reset(seed=seed)
+            ok, t = False, 0
+            for t in range(1, horizon + 1):
+                obs, _, terminated, truncated, info = env.step(policy(obs))
+                # Count an episode as solved at its first successful step (ManiSkill terminates there too).
+                if bool(info["success"].any()):
+                    ok = True
+                    break
+                if bool(terminated.any()) or bool(truncated.any()):
+                    break
+            outcomes.append(ok)
+            lengths.append(t)
+    finally:
+        env.close()
+    return dict(
+        env_id=env_id,
+        episodes=len(seeds),
+        horizon=horizon,
+        success_rate=float(np.mean(outcomes)) if outcomes else 0.0,
+        mean_length=float(np.mean(lengths)) if lengths else 0.0,
+        mean_success_length=float(np.mean([l for l, ok in zip(lengths, outcomes) if ok])) if any(outcomes) else float("nan"),
+        failed_seeds=[s for s, ok in zip(seeds, outcomes) if not ok],
+    )
+
+
+if __name__ == "__main__":  # python -m drem_maniskill.stock_experts [ENV_ID] [N_SEEDS] [HORIZON]
+    import sys
+
+    ids = [sys.argv[1]] if len(sys.argv) > 1 else list(STOCK_EXPERTS)
+    n_seeds = int(sys.argv[2]) if len(sys.argv) > 2 else 50
+    horizon = int(sys.argv[3]) if len(sys.argv) > 3 else None
+    for env_id in ids:
+        print(stock_success_rate(env_id, range(n_seeds), max_episode_steps=horizon))
