@@ -235,6 +235,7 @@ class PegInsertionSideExpert(_StockExpert):
     lift = 0.05
     close_steps = 5
     fine_from = 5  # phases with integral action
+    insert_lead = 0.01  # m ahead of the peg per step while inserting: slow enough to stay centred
 
     def grasp_pose(self) -> Pose:
         """TCP grasp pose: top-down on the peg's axis, ``max(5 cm, L/2 + 1 cm)`` behind the centre."""
@@ -282,9 +283,9 @@ class PegInsertionSideExpert(_StockExpert):
         pe, re = self.pose_error(near, peg)
         self._advance((pe < 0.003) & (lateral < 0.0015), 5, 6)
 
-        # Insert: walk the peg along the hole axis, 2 cm ahead of where it is, stopping 1 cm past
+        # Insert: walk the peg along the hole axis, insert_lead ahead of where it is, stopping 1 cm past
         # the goal (success needs the head within 1.5 cm of the box centre); keep it centred.
-        x = (peg_in_goal[:, 0] + 0.02).clamp(max=0.01)
+        x = (peg_in_goal[:, 0] + self.insert_lead).clamp(max=0.01)
         inserted = goal * _pose(torch.stack([x, torch.zeros_like(x), torch.zeros_like(x)], 1))
 
         to_far = self.tcp_target_for(peg, far)
