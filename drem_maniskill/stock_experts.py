@@ -234,7 +234,6 @@ class PegInsertionSideExpert(_StockExpert):
     env_id = "PegInsertionSide-v1"
     lift = 0.05
     close_steps = 5
-    fine_from = 5  # phases with integral action
     insert_lead = 0.01  # m ahead of the peg per step while inserting: slow enough to stay centred
 
     def grasp_pose(self) -> Pose:
@@ -312,8 +311,9 @@ class PlugChargerExpert(_StockExpert):
     env_id = "PlugCharger-v1"
     lift = 0.05
     close_steps = 5
-    fine_from = 5  # phases with integral action
     grasp_tilt = np.deg2rad(15)
+    lateral_tol = 0.0003  # m; the pins have 0.5 mm clearance a side
+    insert_lead = 0.005  # m ahead of the charger per step while pushing in
 
     def grasp_pose(self) -> Pose:
         """TCP grasp pose: top-down on the base centre, closing across it, tilted away from the pins."""
@@ -350,15 +350,18 @@ class PlugChargerExpert(_StockExpert):
         goal = u.goal_pose
         charger = u.charger.pose
         zeros = torch.zeros(n, device=self.device)
+        # The pins are 16 mm long and enter the receptacle at goal x = -16 mm: "far" holds them
+        # 34 mm out, "near" 4 mm out, where the lateral error is servoed below the clearance.
         far = goal * _pose(torch.stack([zeros - 0.05, zeros, zeros], 1))
-        near = goal * _pose(torch.stack([zeros - 0.01, zeros, zeros], 1))
+        near = goal * _pose(torch.stack([zeros - 0.02, zeros, zeros], 1))
         pe, re = self.pose_error(far, charger)
         self._advance((pe < 0.005) & (re < 0.03), 4, 5)
-        pe, re = self.pose_error(near, charger)
-        self._advance((pe < 0.0005) & (re < 0.01), 5, 6)
-
         rel = (goal.inv() * charger).p
-        x = (rel[:, 0] + 0.01).clamp(max=0.0)
+        lateral = rel[:, 1:].abs().amax(1)
+        pe, re = self.pose_error(near, charger)
+        self._advance((pe < 0.001) & (lateral < self.lateral_tol) & (re < 0.01), 5, 6)
+
+        x = (rel[:, 0] + self.insert_lead).clamp(max=0.0)
         inserted = goal * _pose(torch.stack([x, zeros, zeros], 1))
 
         lifted = _pose(grasp.p + torch.tensor([0, 0, self.lift], device=self.device), grasp.q)
