@@ -208,7 +208,8 @@ _POLICIES: dict[str, type[ScriptedPolicy]] = {
 def get_policy(name: str, env, seed: int = 0) -> Callable:
     """A batched scripted policy ``policy(obs) -> action [num_envs, action_dim]`` for ``env``.
 
-    On other ManiSkill tasks only ``random`` (uniform random actions) exists.
+    On ManiSkill's own tasks ``random`` (uniform random actions) exists everywhere and ``expert`` on
+    PegInsertionSide-v1 and PlugCharger-v1 (``drem_maniskill.stock_experts``, ``pd_ee_delta_pose``).
     """
     from drem_maniskill.envs.insertion_base import InsertionEnv
 
@@ -216,9 +217,14 @@ def get_policy(name: str, env, seed: int = 0) -> Callable:
         if name == "random":
             return _UniformRandom(env, seed)
         if name in ("expert", "direct_success"):
+            from drem_maniskill.stock_experts import STOCK_EXPERTS, get_stock_expert
+
+            if env.unwrapped.spec.id in STOCK_EXPERTS:
+                return get_stock_expert(env, seed=seed)
             raise ValueError(
-                f"no scripted expert for {env.unwrapped.spec.id} in this version; record your own demo with "
-                "ManiSkill's RecordEpisode (obs_mode='rgb', record_env_state=True) and pass it to `drem-maniskill sample`"
+                f"no scripted expert for {env.unwrapped.spec.id} (experts ship for our tasks and {sorted(STOCK_EXPERTS)}); "
+                "record your own demo with ManiSkill's RecordEpisode (obs_mode='rgb', record_env_state=True) "
+                "and pass it to `drem-maniskill sample`"
             )
         raise ValueError(f"scripted policy {name!r} exists only for our insertion tasks; on {env.unwrapped.spec.id} use expert or random")
     if name not in _POLICIES:
