@@ -109,6 +109,7 @@ class _StockExpert:
     env_id: str = ""
     ki = 0.3  # integral gain per step of the fine phases
     fine_from = 5  # first phase with integral action
+    i_zone = float("inf")  # m; the integral only accumulates while the position error is below this
 
     def __init__(self, env, seed: int = 0, action_noise: float = 0.0):
         self.env = env.unwrapped
@@ -165,7 +166,9 @@ class _StockExpert:
         e_pos = target.p - tcp.p
         e_rot = _rot_error(target.q, tcp.q)
         if integral is not None:
-            m = integral[:, None].float()
+            # Conditional integration: far from the target the error is travel, not sag, and
+            # integrating it winds up an overshoot.
+            m = (integral & (torch.linalg.norm(e_pos, dim=1) < self.i_zone))[:, None].float()
             self._i_pos = (self._i_pos + m * e_pos).clamp(-0.05, 0.05)
             self._i_rot = (self._i_rot + m * e_rot).clamp(-0.2, 0.2)
             e_pos = e_pos + self.ki * m * self._i_pos
@@ -186,13 +189,16 @@ class _StockExpert:
         return torch.linalg.norm(a.p - b.p, dim=1), _rot_error(a.q, b.q).norm(dim=1)
 
     def dispatch(self, targets: list) -> torch.Tensor:
-        """Action ``[B, 7]``: each env servos to the target of its phase (PI in the fine phases)."""
+        """Action ``[B, 7]``: each env servos to the target of its phase (PI in the fine phases).
+
+        ``targets`` holds ``(phase, target, gripper)`` or ``(phase, target, gripper, speed)``.
+        """
         action = torch.zeros(self.n, 7, device=self.device)
         fine = self.phase >= self.fine_from
-        for ph, target, grip in targets:
+        for ph, target, grip, *speed in targets:
             mask = self.phase == ph
             if mask.any():
-                action[mask] = self.servo(target, grip, integral=mask & fine)[mask]
+                action[mask] = self.servo(target, grip, *speed, integral=mask & fine)[mask]
         return action
 
     def latched_grasp(self) -> Pose:
@@ -304,8 +310,10 @@ class PegInsertionSideExpert(_StockExpert):
 class PlugChargerExpert(_StockExpert):
     """Grasp the charger base from above (tilted 15 deg back), align with the receptacle, push in.
 
-    Phases: 0 reach 5 cm above the grasp, 1 descend, 2 close, 3 lift, 4 align the charger 5 cm
-    before the receptacle, 5 refine 1 cm before it, 6 insert along the receptacle axis.
+    Phases: 0 reach 5 cm above the grasp, 1 descend, 2 close, 3 lift (turning), 4 align the
+    charger 5 cm before the receptacle, 5 approach slowly to 2 mm between pin tips and receptacle
+    face and centre the tips there, 6 insert 2 mm ahead per step along the receptacle axis; back
+    to 5 if the pins stop on the face off the hole.
     """
 
     env_id = "PlugCharger-v1"
@@ -313,7 +321,10 @@ class PlugChargerExpert(_StockExpert):
     close_steps = 5
     grasp_tilt = np.deg2rad(15)
     lateral_tol = 0.0003  # m; the pins have 0.5 mm clearance a side
-    insert_lead = 0.005  # m ahead of the charger per step while pushing in
+    insert_lead = 0.002  # m ahead of the charger per step while pushing in: slow enough to stay centred
+    near_gap = 0.002  # m between the pin tips and the receptacle face when lining up
+    near_speed = 0.05  # action units (5 mm per step) on the way to "near"
+    i_zone = 0.005  # m: the 3 cm approach to "near" is travel, not sag (see servo)
 
     def grasp_pose(self) -> Pose:
         """TCP grasp pose: top-down on the base centre, closing across it, tilted away from the pins."""
@@ -351,27 +362,38 @@ class PlugChargerExpert(_StockExpert):
         charger = u.charger.pose
         zeros = torch.zeros(n, device=self.device)
         # The pins are 16 mm long and enter the receptacle at goal x = -16 mm: "far" holds them
-        # 34 mm out, "near" 4 mm out, where the lateral error is servoed below the clearance.
+        # 34 mm out, "near" near_gap out, where the lateral error is servoed below the clearance.
         far = goal * _pose(torch.stack([zeros - 0.05, zeros, zeros], 1))
-        near = goal * _pose(torch.stack([zeros - 0.02, zeros, zeros], 1))
+        near = goal * _pose(torch.stack([zeros - 0.016 - self.near_gap, zeros, zeros], 1))
         pe, re = self.pose_error(far, charger)
         self._advance((pe < 0.005) & (re < 0.03), 4, 5)
         rel = (goal.inv() * charger).p
-        lateral = rel[:, 1:].abs().amax(1)
+        # The pin tips are what must hit the hole: a yaw error moves them 16 mm x angle sideways.
+        tips = (goal.inv() * charger * _pose(torch.stack([zeros + 0.016, zeros, zeros], 1))).p
+        lateral = torch.maximum(rel[:, 1:].abs().amax(1), tips[:, 1:].abs().amax(1))
         pe, re = self.pose_error(near, charger)
         self._advance((pe < 0.001) & (lateral < self.lateral_tol) & (re < 0.01), 5, 6)
+        # Pins stopped on the receptacle face off the hole: pressing on only tilts the charger in
+        # the fingers, so back off to "near" and line up again.
+        blocked = (rel[:, 0] < -0.0155) & (lateral > 0.001) & (self.clock > 3)
+        self._advance(blocked, 6, 5)
 
         x = (rel[:, 0] + self.insert_lead).clamp(max=0.0)
         inserted = goal * _pose(torch.stack([x, zeros, zeros], 1))
 
-        lifted = _pose(grasp.p + torch.tensor([0, 0, self.lift], device=self.device), grasp.q)
+        to_far = self.tcp_target_for(charger, far)
+        # Lift straight up, already turning the charger towards the receptacle: the turn (up to
+        # ~1.4 rad at ~0.04 rad per step), not the travel, is what takes longest.
+        lifted = _pose(grasp.p + torch.tensor([0, 0, self.lift], device=self.device), to_far.q)
         targets = [
             (0, above, open_),
             (1, grasp, open_),
             (2, grasp, closed),
             (3, lifted, closed),
-            (4, self.tcp_target_for(charger, far), closed),
-            (5, self.tcp_target_for(charger, near), closed),
+            (4, to_far, closed),
+            # Capped speed (~2 mm of travel per step): at full speed the held charger swings past
+            # "near" onto the receptacle face or off-centre and has to back off (8 of 50 seeds).
+            (5, self.tcp_target_for(charger, near), closed, self.near_speed),
             (6, self.tcp_target_for(charger, inserted), closed),
         ]
         return self.dispatch(targets)
