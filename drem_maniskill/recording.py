@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from mani_skill.utils.wrappers.record import RecordEpisode
 
-from drem_maniskill.scripted import get_policy
+from drem_maniskill.scripted import episode_horizon, get_policy
 
 
 @dataclass
@@ -72,7 +72,7 @@ def record_expert(
         save_on_reset=False, record_env_state=True, video_fps=5,
     )
     pi = policy if callable(policy) else get_policy(policy, env, seed=int(seeds[0]) if len(seeds) else 0)
-    horizon = max_steps or env.unwrapped.spec.max_episode_steps or 50
+    horizon = max_steps or episode_horizon(env)
     result = RecordResult(h5_path=str(out / f"{name}.h5"), json_path=str(out / f"{name}.json"))
     try:
         for seed in tqdm(list(seeds), desc=f"record {getattr(policy, '__name__', policy)} on {env_id}", unit="episode", disable=None):

@@ -146,3 +146,25 @@ def test_no_scripted_expert_for_a_stock_task_is_a_clear_error():
         assert action.shape == (1, 7) and action.abs().max() <= 1
     finally:
         env.close()
+
+
+@pytest.mark.slow
+def test_examine_a_stock_task_against_its_normalized_dense(stock_pipeline, tmp_path):
+    """On PegInsertionSide-v1 the examination runs the stock expert, its noisy version and random,
+    and sets DREM beside ManiSkill's own normalized_dense, step by step."""
+    from PIL import Image
+
+    from drem_maniskill.drem.evaluate import STOCK_EXAMINATION, examine
+
+    result = examine(STOCK, stock_pipeline["checkpoint"], seeds=[0], out_dir=str(tmp_path))
+    assert tuple(result["curves"]) == STOCK_EXAMINATION
+    assert result["success_rate"]["direct_success"] == 1.0 and result["success_rate"]["random"] == 0.0
+    assert result["expert_success_rate"] == 1.0
+    for name, runs in result["curves"].items():
+        assert len(runs[0]) == len(result["dense_curves"][name][0]) == 100  # the stock horizon, no early stop
+    rho = result["spearman_with_normalized_dense"]
+    assert rho is not None and -1.0 <= rho <= 1.0
+    saved = json.loads((tmp_path / "quality.json").read_text())
+    assert saved["spearman_with_normalized_dense"] == rho
+    width, height = Image.open(tmp_path / "examination.png").size
+    assert width > 1.5 * height  # two panels: DREM and normalized_dense

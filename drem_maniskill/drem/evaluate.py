@@ -18,10 +18,12 @@ from typing import Sequence
 import numpy as np
 import torch
 from scipy.stats import spearmanr
+from tqdm import tqdm
 
-from drem_maniskill.scripted import get_policy
+from drem_maniskill.scripted import episode_horizon, get_policy
 
 EXAMINATION = ("direct_success", "align_success", "search_fail", "random")
+STOCK_EXAMINATION = ("direct_success", "noisy_expert", "random")
 
 
 def auroc(scores_pos: Sequence[float], scores_neg: Sequence[float]) -> float:
@@ -39,7 +41,7 @@ def rollout(env, policy_name: str, seed: int, steps: int | None = None, stop_on_
     obs, _ = env.reset(seed=seed)
     u = env.unwrapped
     rewards, force, dense, depth, success = [], [], [], [], False
-    for _ in range(steps or env.spec.max_episode_steps or 50):
+    for _ in range(steps or episode_horizon(env)):
         action = policy(obs)
         obs, reward, terminated, truncated, info = env.step(action)
         rewards.append(float(reward[0]))
@@ -97,25 +99,31 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
             policies: Sequence[str] = EXAMINATION, env_kwargs: dict | None = None) -> dict:
     """Run the quality measures of the model card; writes ``quality.json`` and ``examination.png``.
 
-    On ManiSkill's own tasks only ``expert`` and ``random`` exist among the scripted policies.
+    On ManiSkill's own tasks the examination policies are ``STOCK_EXAMINATION`` (direct_success
+    is the stock expert there). The value-order correlation is over the expert's successful episodes.
     """
     from drem_maniskill.recording import _is_ours
+    from drem_maniskill.stock_experts import STOCK_EXPERTS
 
     if not _is_ours(env_id):
-        policies = [p for p in policies if p in ("random",)]
+        allowed = STOCK_EXAMINATION if env_id in STOCK_EXPERTS else ("random",)
+        policies = [p for p in (STOCK_EXAMINATION if tuple(policies) == EXAMINATION else policies) if p in allowed]
     env = _make_env(env_id, checkpoint, env_kwargs)
     try:
-        expert = [rollout(env, "expert", s) for s in seeds]
-        curves = {p: [rollout(env, p, s, stop_on_success=False) for s in seeds] for p in policies}
+        expert = [rollout(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
+        curves = {p: [rollout(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
+                  for p in policies}
     finally:
         env.close()
-    rho = [spearmanr(np.arange(len(e["rewards"])), e["rewards"]).correlation for e in expert if len(e["rewards"]) > 2]
+    solved = [e for e in expert if e["success"]]
+    rho = [spearmanr(np.arange(len(e["rewards"])), e["rewards"]).correlation for e in solved if len(e["rewards"]) > 2]
     finals = [(ep["rewards"][-1], ep["success"]) for eps in curves.values() for ep in eps]
     drops = [d for ep in curves.get("search_fail", []) if (d := contact_loss_drop(ep)) is not None]
     result = dict(
         env_id=env_id, checkpoint=str(checkpoint), seeds=list(map(int, seeds)),
         value_order_spearman=float(np.nanmean(rho)) if rho else float("nan"),
         value_order_spearman_per_episode=[float(r) for r in rho],
+        expert_success_rate=float(np.mean([e["success"] for e in expert])) if expert else float("nan"),
         final_reward_auroc=auroc([r for r, s in finals if s], [r for r, s in finals if not s]),
         random_mean_reward=float(np.mean([np.mean(ep["rewards"]) for ep in curves.get("random", [])])) if "random" in curves else None,
         search_fail_contact_loss=dict(
@@ -150,21 +158,27 @@ def plot_examination(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for i, (name, runs) in enumerate(result["curves"].items()):
-        length = max(len(r) for r in runs)
-        arr = np.full((len(runs), length), np.nan)
-        for k, r in enumerate(runs):
-            arr[k, : len(r)] = r
-        mean, std = np.nanmean(arr, 0), np.nanstd(arr, 0)
-        t = np.arange(1, length + 1)
-        ax.plot(t, mean, color=f"C{i}", label=f"{name} (success {result['success_rate'][name]:.0%})")
-        ax.fill_between(t, mean - std, mean + std, color=f"C{i}", alpha=0.2)
-    ax.set_xlabel("time step (5 Hz)")
-    ax.set_ylabel("DREM reward")
-    ax.set_title(f"{result['env_id']}: value-order Spearman {result['value_order_spearman']:.2f}, "
-                 f"AUROC {result['final_reward_auroc']:.2f}")
-    ax.legend(fontsize=8)
+    # Beside DREM, the task's own normalized_dense where it has one (ManiSkill's stock tasks).
+    dense = {k: v for k, v in result.get("dense_curves", {}).items() if any(len(r) for r in v)}
+    panels = [("curves", "DREM reward")] + ([("dense_curves", "ManiSkill normalized_dense")] if dense else [])
+    fig, axes = plt.subplots(1, len(panels), figsize=(7 * len(panels), 4), squeeze=False)
+    for ax, (key, ylabel) in zip(axes[0], panels):
+        for i, (name, runs) in enumerate(result[key].items()):
+            length = max(len(r) for r in runs)
+            arr = np.full((len(runs), length), np.nan)
+            for k, r in enumerate(runs):
+                arr[k, : len(r)] = r
+            mean, std = np.nanmean(arr, 0), np.nanstd(arr, 0)
+            t = np.arange(1, length + 1)
+            ax.plot(t, mean, color=f"C{i}", label=f"{name} (success {result['success_rate'][name]:.0%})")
+            ax.fill_between(t, mean - std, mean + std, color=f"C{i}", alpha=0.2)
+        ax.set_xlabel("time step")
+        ax.set_ylabel(ylabel)
+        ax.legend(fontsize=8)
+    axes[0, 0].set_title(f"{result['env_id']}: value-order Spearman {result['value_order_spearman']:.2f}, "
+                         f"AUROC {result['final_reward_auroc']:.2f}")
+    if dense and result.get("spearman_with_normalized_dense") is not None:
+        axes[0, 1].set_title(f"Spearman(DREM, normalized_dense) = {result['spearman_with_normalized_dense']:.2f}")
     fig.tight_layout()
     tmp = path.with_suffix(".tmp.png")
     fig.savefig(tmp, dpi=90)
