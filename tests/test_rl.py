@@ -141,3 +141,39 @@ def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
     summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
     assert {row["reward"] for row in summary["rows"]} == {"sparse", "engineered"}
     assert (tmp_path / "comparison-PegInHole-v1" / "comparison.png").stat().st_size > 10_000
+
+
+def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
+    """PlugCharger-v1 (ManiSkill's, no F/T, sparse only): its two cameras and state; drem through the wrapper."""
+    from pathlib import Path
+
+    import torch
+
+    import drem_maniskill.drem.reward as reward
+    from drem_maniskill.rl.envs import make_env
+    from tests.test_aliases import tiny_stock_checkpoint
+
+    ckpt = Path(tiny_stock_checkpoint(tmp_path / "drem.pt", env_id="PlugCharger-v1"))
+    monkeypatch.setattr(reward, "default_checkpoint", lambda task, image_only=False: ckpt if task == "PlugCharger-v1" else None)
+    sparse = RLConfig.preset("light", task="PlugCharger-v1", reward="sparse")
+    assert not sparse.uses_ft
+    env, vice = make_env(sparse, for_eval=True)
+    try:
+        assert vice is None
+        obs, _ = env.reset(seed=0)
+        assert set(obs) == {"base_camera", "hand_camera", "state"}
+        assert obs["base_camera"].shape == (1, 3, 32, 32) and obs["base_camera"].dtype == torch.uint8
+        assert obs["state"].shape == (1, 9 + 7)  # qpos + tcp pose
+        _, r, *_ = env.step(torch.zeros(1, 7))
+        assert float(r[0]) == 0.0
+    finally:
+        env.close()
+    env, _ = make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="drem"), for_eval=True)
+    try:
+        env.reset(seed=0)
+        _, r, _, _, info = env.step(torch.zeros(1, 7))
+        assert float(info["original_reward"][0]) == 0.0 and float(r[0]) != 0.0
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match=r"PlugCharger-v1 the rewards are \['sparse', 'drem'\].*'engineered'"):
+        make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="engineered"))

@@ -88,7 +88,14 @@ class RLConfig:
 
     @property
     def uses_ft(self) -> bool:
-        """Whether the policy gets the F/T history (``policy_ft=None``: only for the drem reward, as the paper)."""
+        """Whether the policy gets the F/T history (``policy_ft=None``: only for the drem reward, as the paper).
+
+        Never on ManiSkill's own tasks: they have no F/T sensor.
+        """
+        from drem_maniskill.recording import _is_ours
+
+        if not _is_ours(self.task):
+            return False
         return self.reward == "drem" if self.policy_ft is None else bool(self.policy_ft)
 
     @property

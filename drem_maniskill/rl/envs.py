@@ -134,10 +134,44 @@ class SharedVICEReward(gym.Wrapper):
         return obs, self.vice.classifier.log_prob(x).to(reward.device), terminated, truncated, info
 
 
+STOCK_REWARDS = ("sparse", "drem")
+
+
+def _make_stock_env(config, for_eval: bool):
+    """A ManiSkill task of its own (e.g. PlugCharger-v1): its sparse reward, or DREM through the wrapper.
+
+    The policy sees the task's two cameras (its fixed ``base_camera`` and wrist ``hand_camera`` in
+    the roles of ours) and its state; there is no F/T sensor. Control is ``pd_ee_delta_pose``, as
+    for the expert the DREM checkpoint was made from.
+    """
+    from drem_maniskill.drem.adapter import camera_map_for
+    from drem_maniskill.drem.reward import default_checkpoint
+    from drem_maniskill.drem.wrapper import DREMRewardWrapper
+
+    if config.reward not in STOCK_REWARDS:
+        raise ValueError(f"on ManiSkill's own {config.task} the rewards are {list(STOCK_REWARDS)} "
+                         f"(drem: rewards/{config.task}/drem.pt), not {config.reward!r}")
+    kwargs = dict(obs_mode="rgb", reward_mode="sparse", control_mode="pd_ee_delta_pose",
+                  num_envs=1 if for_eval else config.num_envs, sim_backend=config.sim_backend, **config.env_kwargs)
+    env = gym.make(config.task, **kwargs)
+    if config.reward == "drem":
+        path = default_checkpoint(config.task)
+        if not path.exists():
+            env.close()
+            raise FileNotFoundError(f"reward 'drem' on {config.task} needs {path}; make it with scripts/train_stock_rewards.sh {config.task}")
+        env = DREMRewardWrapper(env, str(path))
+    roles = camera_map_for(env.unwrapped)
+    cameras = tuple(roles[r] for r in ("fixed", "wrist") if r in roles)
+    return PolicyObservation(env, config.image_size, cameras, ft=False, state=config.policy_state), None
+
+
 def make_env(config, vice_goal_examples=None, shared_vice=None, for_eval: bool = False):
     """The wrapped ManiSkill env of a config: ``(env, vice_wrapper_or_None)``; rgb obs rendered at 128 px."""
     import drem_maniskill  # noqa: F401  (registers the tasks)
+    from drem_maniskill.recording import _is_ours
 
+    if not _is_ours(config.task):
+        return _make_stock_env(config, for_eval)
     spec = reward_spec(config.reward)
     kwargs = dict(obs_mode="rgb", reward_mode=spec.reward_mode, num_envs=1 if for_eval else config.num_envs,
                   sim_backend=config.sim_backend, **spec.env_kwargs(config.task), **config.env_kwargs)
