@@ -21,15 +21,13 @@ empirically at 20 Hz control / 100 Hz physics):
 Targets are recomputed every step from the measured poses (the part's target pose times the
 measured part-to-TCP transform), so slip in the grasp is corrected on the way.
 
-Start region (for DREM's backward sampling), per stock task: the TCP within ``START_RADIUS``
-(6 cm) of the TCP position of the task's noise-free initial joint configuration, and the gripper
-open (finger gap >= ``START_MIN_GAP``). The stock resets add N(0, 0.02 rad) to every joint,
-which scatters the TCP up to 4.7 cm from that point over seeds 0-49; 6 cm keeps every reset inside.
+DREM's sampler does not use a start region from here: on a stock task it is the demo's first
+TCP position (``drem_maniskill.drem.adapter``), so any demo works the same way.
 """
 
 from __future__ import annotations
 
-from typing import Callable, Iterable
+from typing import Iterable
 
 import numpy as np
 import torch
@@ -45,16 +43,6 @@ from mani_skill.utils.structs import Pose
 POS_SCALE = 0.1  # m per unit action (pos_lower/upper of the stock pd_ee_delta_pose)
 ROT_SCALE = -0.1  # rad per unit action: rot_lower, negative in ManiSkill 3.0.1
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
-
-START_RADIUS = 0.06  # m around the nominal initial TCP position
-START_MIN_GAP = 0.07  # m, finger gap (sum of both finger joints; fully open is 0.08)
-
-# TCP position (world frame) of the noise-free initial qpos; both tasks put the robot root at
-# (-0.615, 0, 0) and share joints 1-6 (joint 7 only spins the hand about the TCP axis).
-NOMINAL_TCP_POS = {
-    "PegInsertionSide-v1": (0.0, 0.0, 0.1698),
-    "PlugCharger-v1": (0.0, 0.0, 0.1698),
-}
 
 
 # ----------------------------------------------------------------------------- pose helpers
@@ -72,34 +60,6 @@ def _rot_error(q_target: torch.Tensor, q_current: torch.Tensor) -> torch.Tensor:
     # Shortest way round: q and -q are the same rotation.
     q = torch.where(q[:, :1] < 0, -q, q)
     return quaternion_to_axis_angle(q)
-
-
-def tcp_pose(env) -> torch.Tensor:
-    """TCP pose ``[B, 7]`` (position, wxyz quaternion) of a ManiSkill env's agent."""
-    return env.unwrapped.agent.tcp.pose.raw_pose
-
-
-def _finger_gap(env) -> torch.Tensor:
-    """Sum of the two finger joint positions ``[B]`` (0.08 m fully open)."""
-    return env.unwrapped.agent.robot.get_qpos()[:, -2:].sum(-1)
-
-
-def _start_region(env, env_id: str) -> torch.Tensor:
-    """Bool ``[B]``: TCP within START_RADIUS of the task's nominal start and the gripper open."""
-    u = env.unwrapped
-    ref = torch.tensor(NOMINAL_TCP_POS[env_id], device=u.device, dtype=torch.float32)
-    near = torch.linalg.norm(u.agent.tcp.pose.p - ref, dim=1) <= START_RADIUS
-    return near & (_finger_gap(env) >= START_MIN_GAP)
-
-
-def peg_insertion_side_start_region(env) -> torch.Tensor:
-    """Start-region predicate ``[B]`` for PegInsertionSide-v1 (see the module docstring)."""
-    return _start_region(env, "PegInsertionSide-v1")
-
-
-def plug_charger_start_region(env) -> torch.Tensor:
-    """Start-region predicate ``[B]`` for PlugCharger-v1 (see the module docstring)."""
-    return _start_region(env, "PlugCharger-v1")
 
 
 # ----------------------------------------------------------------------------- experts
@@ -404,12 +364,6 @@ STOCK_EXPERTS: dict[str, type[_StockExpert]] = {
     "PlugCharger-v1": PlugChargerExpert,
 }
 
-START_REGIONS: dict[str, Callable] = {
-    "PegInsertionSide-v1": peg_insertion_side_start_region,
-    "PlugCharger-v1": plug_charger_start_region,
-}
-
-
 def _env_id(env) -> str:
     spec = getattr(env.unwrapped, "spec", None)
     return spec.id if spec is not None else type(env.unwrapped).__name__
@@ -421,14 +375,6 @@ def get_stock_expert(env, seed: int = 0, **kwargs) -> _StockExpert:
     if env_id not in STOCK_EXPERTS:
         raise ValueError(f"no stock scripted expert for {env_id!r}; supported: {sorted(STOCK_EXPERTS)}")
     return STOCK_EXPERTS[env_id](env, seed=seed, **kwargs)
-
-
-def start_region(env) -> torch.Tensor:
-    """Start-region predicate ``[num_envs]`` of a supported stock env, picked by its id."""
-    env_id = _env_id(env)
-    if env_id not in START_REGIONS:
-        raise ValueError(f"no stock start region for {env_id!r}; supported: {sorted(START_REGIONS)}")
-    return START_REGIONS[env_id](env)
 
 
 def stock_success_rate(env_id: str, seeds: Iterable[int] = range(50), max_episode_steps: int | None = None, env_kwargs=None) -> dict:
