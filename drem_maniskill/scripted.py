@@ -280,7 +280,12 @@ def success_rate(env_id: str, name: str = "expert", seeds=range(100), env_kwargs
     import gymnasium as gym
     from tqdm import tqdm
 
-    env = gym.make(env_id, obs_mode="state_dict", **(env_kwargs or {}))
+    from drem_maniskill.recording import _is_ours
+
+    kwargs = dict(env_kwargs or {})
+    if not _is_ours(env_id):
+        kwargs.setdefault("control_mode", "pd_ee_delta_pose")  # what the stock experts command
+    env = gym.make(env_id, obs_mode="state_dict", **kwargs)
     policy = get_policy(name, env)
     outcomes, lengths = [], []
     try:
