@@ -69,16 +69,19 @@ def _socket_to_world(env, vec_xy: torch.Tensor) -> torch.Tensor:
     return torch.einsum("bij,bj->bi", rot[:, :2, :2], vec_xy)
 
 
+def require_ee_control(env, who: str = "scripted policies") -> None:
+    """ValueError naming the fix unless ``env`` runs ManiSkill's ``pd_ee_delta_pose`` controller."""
+    mode = env.unwrapped.control_mode
+    if mode != "pd_ee_delta_pose":
+        raise ValueError(f"{who} command end-effector deltas; make the env with control_mode='pd_ee_delta_pose' (got {mode!r})")
+
+
 class ScriptedPolicy:
     """Base: batched per-env phase, reset at each env's first step, action assembly."""
 
     def __init__(self, env, seed: int = 0):
         self.env = env.unwrapped
-        if self.env.control_mode != "pd_ee_delta_pose":
-            raise ValueError(
-                f"scripted policies command end-effector twists; make the env with "
-                f"control_mode='pd_ee_delta_pose' (got {self.env.control_mode!r})"
-            )
+        require_ee_control(env)
         self.device = self.env.device
         self.n = self.env.num_envs
         self.generator = torch.Generator(device="cpu").manual_seed(int(seed))

@@ -72,12 +72,10 @@ class _StockExpert:
     i_zone = float("inf")  # m; the integral only accumulates while the position error is below this
 
     def __init__(self, env, seed: int = 0, action_noise: float = 0.0):
+        from drem_maniskill.scripted import require_ee_control
+
         self.env = env.unwrapped
-        if self.env.control_mode != "pd_ee_delta_pose":
-            raise ValueError(
-                f"stock experts command end-effector deltas; make the env with "
-                f"control_mode='pd_ee_delta_pose' (got {self.env.control_mode!r})"
-            )
+        require_ee_control(env, "stock experts")
         self.device = self.env.device
         self.n = self.env.num_envs
         # Deterministic unless action_noise > 0; the seed fixes that noise.
