@@ -100,3 +100,44 @@ def test_record_expert_on_a_stock_task_with_video(tmp_path):
             assert rgb.shape == (steps + 1, 128, 128, 3) and rgb.dtype == np.uint8
         assert "env_states" in traj and traj["success"][-1]
     assert sorted(p.name for p in tmp_path.glob("*.mp4")) == ["0.mp4"]
+
+
+@pytest.mark.parametrize("env_id", ["PegInsertionSide-v1", "PlugCharger-v1"])
+def test_shipped_stock_checkpoint_rises_along_an_expert_episode(env_id):
+    """rewards/<task>/drem.pt (image-only, the task's two cameras) on held-out seed 0."""
+    from scipy.stats import spearmanr
+
+    from drem_maniskill.drem.reward import default_checkpoint
+    from drem_maniskill.drem.wrapper import DREMRewardWrapper
+
+    path = default_checkpoint(env_id)
+    env = DREMRewardWrapper(gym.make(env_id, obs_mode="state", control_mode="pd_ee_delta_pose"), str(path))
+    try:
+        assert env.reward_model.header["env_id"] == env_id
+        assert env.reward_model.header["modalities"] == ["fixed", "wrist"]
+        policy = get_policy("expert", env)
+        obs, _ = env.reset(seed=0)
+        rewards, success = [], False
+        for _ in range(150):
+            obs, reward, _, _, info = env.step(policy(obs))
+            rewards.append(float(reward[0]))
+            success = bool(info["success"][0])
+            if success:
+                break
+        assert success
+        assert rewards[0] < 0.5 < rewards[-1]
+        assert spearmanr(np.arange(len(rewards)), rewards).correlation > 0.8
+    finally:
+        env.close()
+
+
+def test_scripted_success_command_on_a_stock_task():
+    """`drem-maniskill scripted-success` picks the end-effector controller the stock expert needs."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "drem_maniskill.cli", "scripted-success", "--task", "PegInsertionSide-v1",
+                           "--episodes", "2"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(proc.stdout[proc.stdout.index("{"):])
+    assert result["env_id"] == "PegInsertionSide-v1" and result["episodes"] == 2 and result["success_rate"] == 1.0
