@@ -563,6 +563,29 @@ def test_gpu_sim_benchmark_cpu_rgb_short(tmp_path):
     assert _FPS.search(out) and _FPS_RESET.search(out), _fail_msg(proc)
 
 
+def test_gpu_sim_benchmark_on_the_drem_alias_runs_with_drem(tmp_path):
+    """The runner with no reward flag on ``drem_maniskill:PegInHole-DREM-v1`` (gymnasium's module:id form)
+    steps an env whose reward is DREM; loops shortened as above, gym.make watched to report the mode."""
+    code = textwrap.dedent(
+        """
+        import builtins, sys, tyro
+        import mani_skill.examples.benchmarking.gpu_sim as gpu_sim
+        gpu_sim.range = lambda n: builtins.range(min(n, 5))
+        make = gpu_sim.gym.make
+        def watched(*args, **kwargs):
+            env = make(*args, **kwargs)
+            print("made", env.unwrapped.spec.id, "reward_mode", env.unwrapped.reward_mode)
+            return env
+        gpu_sim.gym.make = watched
+        gpu_sim.main(tyro.cli(gpu_sim.Args, args=sys.argv[1:]))
+        """
+    )
+    proc = _run_subprocess(["-c", code, "-e", "drem_maniskill:PegInHole-DREM-v1", "--cpu-sim", "-n", "1", "-o", "state"], cwd=tmp_path)
+    assert proc.returncode == 0, _fail_msg(proc)
+    assert "made PegInHole-DREM-v1 reward_mode drem" in proc.stdout, _fail_msg(proc)
+    assert _FPS.search(proc.stdout), _fail_msg(proc)
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not os.environ.get("DREM_FULL_BENCH"), reason="~80 s; set DREM_FULL_BENCH=1 to run")
 def test_gpu_sim_benchmark_cpu_rgb_full(tmp_path):
