@@ -291,10 +291,11 @@ def success_rate(env_id: str, name: str = "expert", seeds=range(100), env_kwargs
     env = gym.make(env_id, obs_mode="state_dict", **kwargs)
     policy = get_policy(name, env)
     outcomes, lengths = [], []
+    horizon = episode_horizon(env)
     try:
         for seed in tqdm(list(seeds), desc=f"{name} on {env_id}", unit="episode", disable=None):
             obs, _ = env.reset(seed=int(seed))
-            for t in range(episode_horizon(env)):
+            for t in range(horizon):
                 obs, _, terminated, truncated, info = env.step(policy(obs))
                 if bool(terminated.any()) or bool(truncated.any()):
                     break
@@ -302,5 +303,8 @@ def success_rate(env_id: str, name: str = "expert", seeds=range(100), env_kwargs
             lengths.append(t + 1)
     finally:
         env.close()
-    return dict(env_id=env_id, policy=name, episodes=len(outcomes), success_rate=sum(outcomes) / max(len(outcomes), 1),
-                mean_length=float(np.mean(lengths)), failed_seeds=[int(s) for s, ok in zip(seeds, outcomes) if not ok])
+    solved = [n for n, ok in zip(lengths, outcomes) if ok]
+    return dict(env_id=env_id, policy=name, episodes=len(outcomes), horizon=horizon,
+                success_rate=sum(outcomes) / max(len(outcomes), 1), mean_length=float(np.mean(lengths)),
+                mean_success_length=float(np.mean(solved)) if solved else float("nan"),
+                failed_seeds=[int(s) for s, ok in zip(seeds, outcomes) if not ok])

@@ -27,8 +27,6 @@ TCP position (``drem_maniskill.drem.adapter``), so any demo works the same way.
 
 from __future__ import annotations
 
-from typing import Iterable
-
 import numpy as np
 import torch
 
@@ -375,53 +373,13 @@ def get_stock_expert(env, seed: int = 0, **kwargs) -> _StockExpert:
     return STOCK_EXPERTS[env_id](env, seed=seed, **kwargs)
 
 
-def stock_success_rate(env_id: str, seeds: Iterable[int] = range(50), max_episode_steps: int | None = None, env_kwargs=None) -> dict:
-    """Run the stock expert once per seed; success rate, mean episode length and failed seeds."""
-    import gymnasium as gym
-
-    import mani_skill.envs  # noqa: F401  (registers the stock tasks)
-
-    kwargs = dict(obs_mode="state", control_mode="pd_ee_delta_pose")
-    kwargs.update(env_kwargs or {})
-    if max_episode_steps is not None:
-        kwargs["max_episode_steps"] = max_episode_steps
-    env = gym.make(env_id, **kwargs)
-    horizon = max_episode_steps or env.spec.max_episode_steps or gym.spec(env_id).max_episode_steps
-    policy = get_stock_expert(env)
-    seeds = [int(s) for s in seeds]
-    outcomes, lengths = [], []
-    try:
-        for seed in seeds:
-            obs, _ = env.reset(seed=seed)
-            ok, t = False, 0
-            for t in range(1, horizon + 1):
-                obs, _, terminated, truncated, info = env.step(policy(obs))
-                # Count an episode as solved at its first successful step (ManiSkill terminates there too).
-                if bool(info["success"].any()):
-                    ok = True
-                    break
-                if bool(terminated.any()) or bool(truncated.any()):
-                    break
-            outcomes.append(ok)
-            lengths.append(t)
-    finally:
-        env.close()
-    return dict(
-        env_id=env_id,
-        episodes=len(seeds),
-        horizon=horizon,
-        success_rate=float(np.mean(outcomes)) if outcomes else 0.0,
-        mean_length=float(np.mean(lengths)) if lengths else 0.0,
-        mean_success_length=float(np.mean([l for l, ok in zip(lengths, outcomes) if ok])) if any(outcomes) else float("nan"),
-        failed_seeds=[s for s, ok in zip(seeds, outcomes) if not ok],
-    )
-
-
 if __name__ == "__main__":  # python -m drem_maniskill.stock_experts [ENV_ID] [N_SEEDS] [HORIZON]
     import sys
 
+    from drem_maniskill.scripted import success_rate
+
     ids = [sys.argv[1]] if len(sys.argv) > 1 else list(STOCK_EXPERTS)
     n_seeds = int(sys.argv[2]) if len(sys.argv) > 2 else 50
-    horizon = int(sys.argv[3]) if len(sys.argv) > 3 else None
+    horizon = {"max_episode_steps": int(sys.argv[3])} if len(sys.argv) > 3 else None
     for env_id in ids:
-        print(stock_success_rate(env_id, range(n_seeds), max_episode_steps=horizon))
+        print(success_rate(env_id, "expert", range(n_seeds), env_kwargs=horizon))

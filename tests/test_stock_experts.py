@@ -15,13 +15,13 @@ import pytest
 import torch
 
 import drem_maniskill  # noqa: F401
-from drem_maniskill.scripted import get_policy
-from drem_maniskill.stock_experts import PegInsertionSideExpert, PlugChargerExpert, stock_success_rate
+from drem_maniskill.scripted import get_policy, success_rate
+from drem_maniskill.stock_experts import PegInsertionSideExpert, PlugChargerExpert
 
 
 @pytest.mark.parametrize("env_id", ["PegInsertionSide-v1", "PlugCharger-v1"])
 def test_stock_expert_solves_the_first_seeds(env_id):
-    result = stock_success_rate(env_id, seeds=range(3))
+    result = success_rate(env_id, "expert", seeds=range(3))
     assert result["success_rate"] == 1.0, result
 
 
