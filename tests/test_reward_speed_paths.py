@@ -123,3 +123,45 @@ def test_rgb_views_of_rgba_images_as_cameras_give_them(shipped, channels):
         assert not views["fixed"].is_contiguous()
         torch.testing.assert_close(shipped(views), shipped(copies), atol=1e-6, rtol=0)
         torch.testing.assert_close(shipped(views), shipped.forward_reference(copies), atol=ATOL, rtol=0)
+
+
+def test_fast_path_results_are_not_views_of_its_work_buffers(shipped):
+    # The fast encoder keeps its intermediate tensors between calls: what it returns must not be one.
+    first = _random_batch(1, 128, seed=21)
+    second = _random_batch(1, 128, seed=22)
+    reward, latent = shipped(first), shipped.embed(first)
+    kept_reward, kept_latent = reward.clone(), latent.clone()
+    shipped(second), shipped.embed(second)
+    assert torch.equal(reward, kept_reward) and torch.equal(latent, kept_latent)
+    assert not torch.allclose(shipped(second), kept_reward)
+
+
+def test_fast_path_switching_batch_sizes_and_image_sizes_keeps_each_right(shipped):
+    # Work buffers are kept per batch size and image layout; a call must never read another's.
+    cases = [(1, 128, 31), (3, 64, 32), (1, 128, 33), (2, 256, 34), (3, 64, 35)]
+    for batch, px, seed in cases + cases[::-1]:
+        inputs = _random_batch(batch, px, seed=seed)
+        torch.testing.assert_close(shipped(inputs), shipped.forward_reference(inputs), atol=ATOL, rtol=0)
+
+
+def test_fast_path_gives_each_thread_its_own_result(shipped):
+    # Vectorised envs may step in threads: two threads sharing one reward must not share buffers.
+    import threading
+
+    inputs = [_random_batch(1, 128, seed=40 + k) for k in range(2)]
+    expected = [shipped.forward_reference(x) for x in inputs]
+    barrier, errors = threading.Barrier(2), []
+
+    def run(k):
+        barrier.wait()
+        for _ in range(30):
+            got = shipped(inputs[k])
+            if not torch.allclose(got, expected[k], atol=ATOL, rtol=0):
+                errors.append((k, got, expected[k]))
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors[:2]

@@ -7,7 +7,9 @@ Observations of ``num_envs`` envs in, a ``[num_envs]`` tensor out, without gradi
 
 from __future__ import annotations
 
+import operator
 import sys
+import threading
 from pathlib import Path
 from typing import Optional
 
@@ -27,19 +29,24 @@ class FastEncoder:
     """The reward's encoder ``h(s)`` rearranged for speed; same weights, same function.
 
     Built from a :class:`DREMModel` at load (``DREMReward`` rebuilds it when its weights change).
-    At a handful of envs the encoder's cost is per-op overhead, so it runs fewer, larger ops:
+    At a handful of envs the encoder's cost is per-op overhead, and inside an env step every op
+    also starts on caches the render has cooled, so it runs as few ops as it can:
 
-    - images stay as the env gives them (``[B, H, W, 3]`` uint8, channels last); a downscale by
-      an integer factor ``f`` to the model's size is a sum over ``f x f`` blocks (what area
-      interpolation computes), and ``1 / (255 f^2)`` is one multiply;
-    - every camera goes through its CNN in the same op, the cameras stacked on a leading dim:
-      a stride-2 4x4 conv with padding 1 is a space-to-depth of the padded map and one batched
-      matmul (``bmm``) whose four 2x2 output blocks are summed; the last, tiny conv layers are
-      dense matrices (the conv applied to an identity basis);
-    - the causal F/T convs are evaluated only at the time steps the newest output depends on;
+    - images stay as the env gives them (``[B, H, W, 3]`` uint8, channels last) and are copied
+      once into an int16 buffer; a downscale by an integer factor ``f`` to the model's size is a
+      sum over ``f x f`` blocks (what area interpolation computes, exact in integers) written
+      as floats straight into the first layer's zero-padded input, then one multiply by
+      ``1 / (255 f^2)``;
+    - every camera goes through its CNN in the same ops, the cameras stacked on a leading dim:
+      a stride-2 4x4 conv with padding 1 is one copy of its input windows (im2col) and one
+      batched matmul with the bias (``baddbmm``), whose activation is written into the next
+      layer's padded input; the last, tiny conv layers are dense matrices (the conv applied to
+      an identity basis);
+    - the causal F/T convs are dense matrices over the time steps the newest output reads;
     - the linear layers with no nonlinearity between them (image ``fc``, the last F/T conv,
-      ``fusion[0]``) are one matrix;
-    - the unit goal embedding and the normaliser ``d(h(s_0), h(s_G))`` are precomputed.
+      ``fusion[0]``) are one matrix, and every branch writes its part of that matrix's input
+      in place;
+    - all intermediate tensors are buffers kept per thread, batch size and input layout.
 
     Matches ``model.encode(model.prepare(batch))`` to float rounding (tests/test_reward_speed_paths.py).
     """
@@ -56,8 +63,7 @@ class FastEncoder:
         self.slope = 0.1
         with torch.no_grad():
             self.layers = self._image_layers(model) if self.cameras else []
-            self.ft_layers, ft_out_times = self._ft_layers(model) if "ft" in cfg.modalities else ([], 0)
-            self.ft_scale = 1.0 / float(model.ft_scale)
+            self.ft_layers, taps = self._ft_layers(model) if self.has_ft else ([], [])
             # fusion[0] o (per-camera fc, last F/T conv): one linear map of the concatenation.
             f0 = model.fusion[0]
             weights, bias, off = [], f0.bias.detach().clone(), 0
@@ -70,19 +76,21 @@ class FastEncoder:
                 w_fc = fc.weight.view(fc.out_features, -1, side, side).permute(0, 2, 3, 1).reshape(fc.out_features, -1)
                 weights.append(w0 @ w_fc)
                 bias += w0 @ fc.bias
-            if "ft" in cfg.modalities:
+            if self.has_ft:
                 last = model.ft_encoder.net[-1]
                 w0 = f0.weight[:, off : off + last.out_channels]
-                taps = ft_out_times  # which taps of the last conv see real inputs (the other reads padding)
                 weights.append(torch.cat([w0 @ last.weight[:, :, k] for k in taps], dim=1))
                 bias += w0 @ last.bias
             self.fused_w = torch.cat(weights, dim=1).t().contiguous()
             self.fused_b = bias
             self.out_w, self.out_b = model.fusion[2].weight.t().contiguous(), model.fusion[2].bias.clone()
+        self.image_features = len(self.cameras) * side * side * cfg.channels[-1] if self.cameras else 0
+        self._local = threading.local()
 
     # --- construction ---
 
     def _image_layers(self, model: DREMModel) -> list:
+        """Per conv layer ``(kind, side, c_in, c_out, weight [K, rows, cols], bias [K, 1, cols])``."""
         convs = [[m for m in model.image_encoders[c].conv if isinstance(m, nn.Conv2d)] for c in self.cameras]
         layers, side = [], self.size
         for i in range(len(convs[0])):
@@ -95,48 +103,46 @@ class FastEncoder:
                 eye = eye.view(n_in, side, side, cin).permute(0, 3, 1, 2)
                 mats = [F.conv2d(eye, cv[i].weight, None, 2, 1).permute(0, 2, 3, 1).reshape(n_in, -1) for cv in convs]
                 bias = [cv[i].bias.repeat(half * half) for cv in convs]
-                layers.append(("dense", torch.stack(mats).contiguous(), torch.stack(bias)[:, None, :]))
+                layers.append(("dense", side, cin, cout, torch.stack(mats).contiguous(), torch.stack(bias)[:, None, :].contiguous()))
             else:
-                # weight[o, i, 2a + p, 2b + q]: rows (p, q, i) of the space-to-depth input, cols (a, b, o).
-                mats = [
-                    cv[i].weight.view(cout, cin, 2, 2, 2, 2).permute(3, 5, 1, 2, 4, 0).reshape(4 * cin, 4 * cout) for cv in convs
-                ]
+                # Rows in the order of an input window: (kernel row, kernel column, input channel).
+                mats = [cv[i].weight.permute(2, 3, 1, 0).reshape(16 * cin, cout) for cv in convs]
                 bias = [cv[i].bias for cv in convs]
-                layers.append(("s2d", torch.stack(mats).contiguous(), torch.stack(bias)[:, None, None, None, :]))
+                layers.append(("im2col", side, cin, cout, torch.stack(mats).contiguous(), torch.stack(bias)[:, None, :].contiguous()))
             side = half
         return layers
 
     def _ft_layers(self, model: DREMModel):
-        """Gather plans of the causal convs, restricted to what the newest step's output reads."""
+        """Dense matrices of the causal convs between the time steps the newest output reads."""
         convs = [m for m in model.ft_encoder.net if isinstance(m, nn.Conv1d)]
-        if any(cv.kernel_size != (2,) for cv in convs):
-            raise ValueError("FastEncoder expects kernel-2 causal F/T convs")
+        if len(convs) < 2 or any(cv.kernel_size != (2,) for cv in convs):
+            raise ValueError("FastEncoder expects at least two kernel-2 causal F/T convs")
         T = model.config.ft_history
-        need = [[T - 1]]  # need[l]: times of layer l's output used above (l = len(convs) - 1 is the last)
+        # A kernel-2 causal conv with dilation d: out[t] = w[..., 0] x[t - d] + w[..., 1] x[t] + b.
+        need = [[T - 1]]  # need[l]: the times of layer l's input that the newest output reads
         for cv in reversed(convs):
             d = cv.dilation[0]
-            below = sorted({u for t in need[0] for u in (t - d, t) if u >= 0})
-            need.insert(0, below)
-        # need[0]: input times; need[l + 1]: output times of conv l.
-        plans = []
+            need.insert(0, sorted({u for t in need[0] for u in (t - d, t) if u >= 0}))
+        need[0] = list(range(T))  # the raw history is read whole (unread steps get zero rows)
+        layers = []
         for l, cv in enumerate(convs[:-1]):
-            src, d = need[l], cv.dilation[0]
-            prev = [src.index(t - d) if t - d >= 0 else len(src) for t in need[l + 1]]
-            cur = [src.index(t) for t in need[l + 1]]
-            pairs = len(src) == 2 * len(cur) and prev == list(range(0, len(src), 2)) and cur == [p + 1 for p in prev]
-            w = cv.weight.permute(0, 2, 1).reshape(cv.out_channels, -1).t().contiguous()  # rows (tap, c_in)
-            plans.append((pairs, torch.tensor(prev), torch.tensor(cur), w, cv.bias.detach()))
-        self.ft_input_times = torch.tensor(need[0])
-        self.ft_input_all = need[0] == list(range(T))
-        # The last conv at T - 1: its tap 0 reads t - d (padding when negative), tap 1 reads t.
-        last, t = convs[-1], T - 1
-        src = need[-2]
-        self.ft_last_idx = torch.tensor(([src.index(t - last.dilation[0])] if t - last.dilation[0] >= 0 else []) + [src.index(t)])
-        self.ft_last_all = self.ft_last_idx.tolist() == list(range(len(src)))
-        taps = ([0] if t - last.dilation[0] >= 0 else []) + [1]
-        return plans, taps
+            src, dst, d = need[l], need[l + 1], cv.dilation[0]
+            w = cv.weight.new_zeros(len(src) * cv.in_channels, len(dst) * cv.out_channels)
+            for j, t in enumerate(dst):
+                for k, u in ((0, t - d), (1, t)):
+                    if u >= 0:
+                        i = src.index(u)
+                        w[i * cv.in_channels : (i + 1) * cv.in_channels, j * cv.out_channels : (j + 1) * cv.out_channels] = cv.weight[:, :, k].t()
+            if l == 0:
+                w = w / float(model.ft_scale)  # the input scaling folded in
+            layers.append((w.contiguous(), cv.bias.repeat(len(dst)).contiguous()))
+        # The last conv at T - 1 reads its input at need[-2]: t - d (when not padding) and t.
+        t, d = T - 1, convs[-1].dilation[0]
+        taps = ([0] if t - d >= 0 else []) + [1]
+        return layers, taps
 
     def to(self, device) -> "FastEncoder":
+        """Move the weights (the work buffers follow, per device)."""
         for k, v in vars(self).items():
             if isinstance(v, torch.Tensor):
                 setattr(self, k, v.to(device))
@@ -145,32 +151,6 @@ class FastEncoder:
         return self
 
     # --- inference ---
-
-    def images(self, batch: dict) -> Optional[torch.Tensor]:
-        """Camera images stacked ``[K, B, S, S, 3]`` floats in [0, 1], or None for other inputs."""
-        imgs = [batch[c] for c in self.cameras]
-        first = imgs[0]
-        if first.dim() != 4 or first.shape[-1] != 3 or first.dtype != torch.uint8:
-            return None
-        h, w = first.shape[1:3]
-        if h != w or h % self.size or any(x.shape != first.shape for x in imgs):
-            return None
-        f = h // self.size
-        # Cameras hand out RGB as a view of RGBA (strides [..., 4, 1]): copying such a view
-        # byte by byte is slow, so the whole RGBA block is pooled and the alpha dropped after.
-        imgs = [self._rgba_view(x) for x in imgs]
-        x = torch.stack(imgs).float() if len(imgs) > 1 else imgs[0][None].float()
-        K, B, _, _, C = x.shape
-        if f == 2:  # two adds of strided views: much cheaper than a reduction over a 6-d view
-            x = x.view(K, B, self.size, 2, w, C)
-            x = x[:, :, :, 0] + x[:, :, :, 1]
-            x = x.view(K, B, self.size, self.size, 2 * C)
-            x = x[..., :C] + x[..., C:]
-        elif f > 2:
-            x = x.view(K, B, self.size, f, self.size, f, C).sum((3, 5))
-        if C != 3:
-            return x[..., :3].mul(1.0 / (255.0 * f * f))
-        return x.mul_(1.0 / (255.0 * f * f))
 
     @staticmethod
     def _rgba_view(x: torch.Tensor) -> torch.Tensor:
@@ -181,55 +161,117 @@ class FastEncoder:
             return x
         return x.as_strided((*x.shape[:3], 4), (*x.stride()[:3], 1))
 
-    def _s2d_conv(self, x, w, b):
-        K, B, H, W, C = x.shape
-        x = F.pad(x, (0, 0, 1, 1, 1, 1))
-        h2, w2 = H // 2 + 1, W // 2 + 1
-        x = x.view(K, B, h2, 2, w2, 2, C).permute(0, 1, 2, 4, 3, 5, 6).reshape(K, B * h2 * w2, 4 * C)
-        y = torch.bmm(x, w).view(K, B, h2, w2, w.shape[-1])
-        co = w.shape[-1] // 4
-        y = y[:, :, :-1, :-1, :co] + y[:, :, :-1, 1:, co : 2 * co] + y[:, :, 1:, :-1, 2 * co : 3 * co] + y[:, :, 1:, 1:, 3 * co :]
-        return F.leaky_relu(y.add_(b), self.slope)
+    def _buffers(self, shape: tuple, device) -> dict:
+        """Work tensors for images ``shape`` ``(K, B, H, W, C)`` (zero padding written once)."""
+        cache = getattr(self._local, "buffers", None)
+        if cache is None:
+            cache = self._local.buffers = {}
+        key = (shape, device)
+        if key in cache:
+            return cache[key]
+        K, B, H, W, C = shape
+        S = self.size
+        new = dict(device=device, dtype=self.fused_w.dtype)
+        buf = {"z": torch.zeros(B, self.fused_w.shape[0], **new)}
+        if self.cameras:
+            # int16 holds the sums of 2 x 2 uint8 pixels exactly, in half a float's bytes.
+            buf["images"] = torch.empty(shape, dtype=torch.int16, device=device)
+            buf["rows"] = torch.empty(K, B, S, W, C, dtype=torch.int16, device=device)
+            for l, (kind, side, cin, cout, w, b) in enumerate(self.layers):
+                h = side // 2
+                if kind == "im2col":
+                    buf[l] = (torch.zeros(K, B, side + 2, side + 2, cin, **new), torch.empty(K, B * h * h, 16 * cin, **new),
+                              torch.empty(K, B * h * h, cout, **new))
+                else:
+                    buf[l] = (torch.empty(K, B, side * side * cin, **new), None, torch.empty(K, B, w.shape[-1], **new))
+        for l, (w, b) in enumerate(self.ft_layers):
+            buf[f"ft{l}"] = torch.empty(B, w.shape[1], **new)
+        cache[key] = buf
+        return buf
 
-    def encode_images(self, x: torch.Tensor) -> torch.Tensor:
-        """``[K, B, S, S, 3]`` in [0, 1] -> conv features ``[B, K * D]``, channels last per camera."""
-        K, B = x.shape[:2]
-        for kind, w, b in self.layers:
-            if kind == "s2d":
-                x = self._s2d_conv(x, w, b)
-            else:
-                x = F.leaky_relu(torch.baddbmm(b, x.reshape(K, B, -1), w), self.slope)
-        return x.reshape(K, B, -1).transpose(0, 1).reshape(B, -1)
+    def _layer_input(self, buf: dict, l: int, K: int, B: int) -> torch.Tensor:
+        """Where layer ``l``'s input lives, as ``[K, B, side, side, C]`` (after the last layer: ``z``)."""
+        if l == len(self.layers):
+            side = self.size // 2 ** l
+            c = self.layers[-1][3]
+            return buf["z"][:, : self.image_features].view(B, K, side, side, c).transpose(0, 1)
+        kind, side, cin = self.layers[l][:3]
+        if kind == "im2col":
+            return buf[l][0][:, :, 1:-1, 1:-1]
+        return buf[l][0].view(K, B, side, side, cin)
 
-    def encode_ft(self, ft: torch.Tensor) -> torch.Tensor:
-        """``[B, T, 6]`` raw F/T -> the inputs of the last causal conv at the newest step, ``[B, n * C]``."""
-        B = ft.shape[0]
-        x = ft if self.ft_input_all else ft[:, self.ft_input_times.to(ft.device)]
-        x = x.float() * self.ft_scale
-        for pairs, prev, cur, w, b in self.ft_layers:
-            if pairs:
-                x = x.reshape(B, -1, 2 * x.shape[-1])
-            else:
-                x = torch.cat([x, x.new_zeros(B, 1, x.shape[-1])], dim=1)
-                x = torch.cat([x[:, prev], x[:, cur]], dim=-1)
-            x = F.leaky_relu(torch.matmul(x, w).add_(b), self.slope)
-        if not self.ft_last_all:
-            x = x[:, self.ft_last_idx]
-        return x.reshape(B, -1)
+    def _images_into(self, sources: list, buf: dict, f: int) -> None:
+        """Pool the camera images to the model's size, in [0, 1], into the first layer's input."""
+        K, B = len(sources), sources[0].shape[0]
+        dst = self._layer_input(buf, 0, K, B)
+        if f == 1:
+            for k, src in enumerate(sources):
+                torch.mul(src[..., :3], 1.0 / 255.0, out=dst[k])
+            return
+        x = buf["images"]
+        W, C = x.shape[-2:]
+        for k, src in enumerate(sources):
+            x[k].copy_(src)  # uint8 -> int16 in the copy
+        S = self.size
+        if f == 2:  # two adds of strided views: much cheaper than a reduction over a 6-d view
+            rows = buf["rows"]
+            x = x.view(K, B, S, 2, W, C)
+            torch.add(x[:, :, :, 0], x[:, :, :, 1], out=rows)
+            rows = rows.view(K, B, S, S, 2 * C)
+            torch.add(rows[..., :3], rows[..., C : C + 3], out=dst)  # int16 sums, written as floats
+        else:
+            dst.copy_(x.view(K, B, S, f, S, f, C).sum((3, 5))[..., :3])
+        dst.mul_(1.0 / (255.0 * f * f))
 
     def encode(self, batch: dict) -> Optional[torch.Tensor]:
         """Latent ``h(s)`` ``[B, latent]`` of raw inputs, or None when they need the general path."""
-        parts = []
+        B = next(iter(batch.values())).shape[0]
         if self.cameras:
-            x = self.images(batch)
-            if x is None:
+            imgs = [batch[c] for c in self.cameras]
+            first = imgs[0]
+            if first.dim() != 4 or first.shape[-1] != 3 or first.dtype != torch.uint8:
                 return None
-            parts.append(self.encode_images(x))
+            h, w = first.shape[1:3]
+            if h != w or h % self.size or any(x.shape != first.shape or x.dtype != torch.uint8 for x in imgs):
+                return None
+            # Cameras hand out RGB as a view of RGBA (strides [..., 4, 1]): copying such a view
+            # byte by byte is slow, so the whole RGBA block is read and the alpha dropped after.
+            sources = [self._rgba_view(x) for x in imgs]
+            if len({s.shape[-1] for s in sources}) > 1:
+                sources = imgs
+            K = len(imgs)
+            buf = self._buffers((K, B, h, w, sources[0].shape[-1]), first.device)
+            self._images_into(sources, buf, h // self.size)
+            for l, (kind, side, cin, cout, wt, bias) in enumerate(self.layers):
+                inp, cols, out = buf[l]
+                half = side // 2
+                if kind == "im2col":
+                    s = inp.stride()
+                    windows = inp.as_strided((K, B, half, half, 4, 4, cin), (s[0], s[1], 2 * s[2], 2 * s[3], s[2], s[3], 1), inp.storage_offset())
+                    cols.view(K, B, half, half, 4, 4, cin).copy_(windows)
+                    inp = cols
+                torch.baddbmm(bias, inp, wt, out=out)
+                _leaky_relu_out(out.view(K, B, half, half, cout), self.slope, out=self._layer_input(buf, l + 1, K, B))
+        else:
+            buf = self._buffers((0, B, 0, 0, 0), batch["ft"].device)
+        z = buf["z"]
         if self.has_ft:
-            parts.append(self.encode_ft(batch["ft"]))
-        z = torch.cat(parts, dim=1) if len(parts) > 1 else parts[0]
-        z = F.leaky_relu(torch.addmm(self.fused_b, z, self.fused_w), self.slope)
-        return torch.addmm(self.out_b, z, self.out_w)
+            x = batch["ft"]
+            x = x.reshape(B, -1) if x.dtype == z.dtype else x.to(z.dtype).reshape(B, -1)
+            last = len(self.ft_layers) - 1
+            for l, (wt, bias) in enumerate(self.ft_layers):
+                y = torch.addmm(bias, x, wt, out=buf[f"ft{l}"])
+                if l == last:
+                    _leaky_relu_out(y, self.slope, out=z[:, self.image_features :])
+                else:
+                    x = F.leaky_relu_(y, self.slope)
+        hidden = F.leaky_relu_(torch.addmm(self.fused_b, z, self.fused_w), self.slope)
+        return torch.addmm(self.out_b, hidden, self.out_w)
+
+
+# leaky_relu with an ``out=`` argument: writes the activation straight into the next input.
+_leaky_relu_out = torch.ops.aten.leaky_relu.out
+_VERSION = operator.attrgetter("_version")
 
 
 def default_checkpoint(env_id: str, image_only: bool = False) -> Path:
@@ -281,8 +323,15 @@ class DREMReward(nn.Module):
     @property
     def camera_of(self) -> dict:
         """Image modality -> camera uid, as the checkpoint was trained (``base_camera`` on stock tasks)."""
-        uids = self.header.get("camera_uids") or [CAMERA_OF[c] for c in self.model.config.cameras]
-        return dict(zip(self.model.config.cameras, uids))
+        return dict(self.camera_pairs)
+
+    @property
+    def camera_pairs(self) -> tuple:
+        """``camera_of`` as ``(modality, uid)`` pairs, built once: the env step reads it."""
+        if getattr(self, "_camera_pairs", None) is None:
+            uids = self.header.get("camera_uids") or [CAMERA_OF[c] for c in self.model.config.cameras]
+            self._camera_pairs = tuple(zip(self.model.config.cameras, uids))
+        return self._camera_pairs
 
     def inputs_from_obs(self, obs: dict) -> dict:
         """Pick the model's inputs from a ManiSkill observation dict (``sensor_data`` + ``extra``)."""
@@ -308,17 +357,21 @@ class DREMReward(nn.Module):
         """The fast encoder of the current weights (rebuilt after ``.to()``, ``load_state_dict`` or edits)."""
         tensors = getattr(self, "_fast_tensors", None)
         if tensors is None:
-            tensors = self._fast_tensors = (*self.model.parameters(), *self.model.buffers(), self.h_start, self.h_goal)
+            m = self.model  # what h(s) reads; the decoders do not count
+            parts = (m.image_encoders, m.fusion) + ((m.ft_encoder,) if hasattr(m, "ft_encoder") else ())
+            tensors = (*(t for p in parts for t in p.parameters()), m.ft_scale, self.h_start, self.h_goal)
+            self._fast_tensors = tensors
             self._fast_key = None
         # In-place changes (load_state_dict, optimiser steps, edits) bump a tensor's version;
         # moving the model's own tensors (``reward.model.to(...)``) changes their storage.
-        key = [(t._version, t.data_ptr()) for t in tensors]
+        key = (*map(_VERSION, tensors), *map(torch.Tensor.data_ptr, tensors))
         if self._fast_key != key:
             self._fast_encoder = FastEncoder(self.model)
             with torch.no_grad():
                 # Eq. 2's constants, computed once with the same ops as forward_reference.
                 self._goal_unit = F.normalize(self.h_goal[None], dim=-1)
                 self._scale = cosine_distance(self.h_start[None], self.h_goal[None]).clamp(min=1e-6)
+                self._one = torch.ones((), dtype=self._scale.dtype, device=self._scale.device)
             self._fast_key = key
         return self._fast_encoder
 
@@ -357,9 +410,14 @@ class DREMReward(nn.Module):
         """``R(s)`` ``[B]`` of raw inputs."""
         h = self.embed(batch)
         # 1 - d(h, h_G) / d(h_0, h_G) with the unit goal and the normaliser precomputed, in the
-        # reference's order: d(h_0, h_G) can be tiny (a barely trained model), and folding
-        # 1 / d(h_0, h_G) into the goal would amplify rounding differences by as much.
-        return 1.0 - (1.0 - (F.normalize(h, dim=-1) * self._goal_unit).sum(-1)) / self._scale
+        # reference's order of ops: d(h_0, h_G) can be tiny (a barely trained model), so any other
+        # rounding of the cosine (a matmul's sum order, folding 1 / d(h_0, h_G) into the goal) is
+        # amplified by as much (measured: 0.025 on the tiny pipeline's checkpoint). Written with
+        # fewer ops, each giving the same floats: F.normalize's h / max(|h|, 1e-12), then
+        # 1 + (cos - 1) / d(h_0, h_G), which is 1 - (1 - cos) / d(h_0, h_G) exactly.
+        norm = torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp_min_(1e-12)
+        cos = torch.div(h, norm).mul_(self._goal_unit).sum(-1)
+        return torch.addcdiv(self._one, cos.sub_(1.0), self._scale)
 
     @torch.no_grad()
     def forward_reference(self, batch: dict) -> torch.Tensor:

@@ -408,22 +408,19 @@ class InsertionEnv(BaseEnv):
 
     def compute_drem_reward(self, obs: Any, action: torch.Tensor, info: dict):
         """DREM task progress ``R(s)`` from the cameras and the F/T history (Eq. 2)."""
-        images = {}
+        pairs = self._drem.camera_pairs  # the checkpoint's own modality -> camera uid map
         sensor_data = obs.get("sensor_data", {}) if isinstance(obs, dict) else {}
-        need = self._drem.camera_uids
-        if all("rgb" in sensor_data.get(uid, {}) for uid in need):
-            images = {uid: sensor_data[uid]["rgb"] for uid in need}  # the obs already has them
-        else:
+        try:
+            batch = {key: sensor_data[uid]["rgb"] for key, uid in pairs}  # the obs already has them (views, uncopied)
+        except KeyError:
             # Obs modes without rgb (state, none, depth-only): render the cameras once here.
             self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            for uid in need:
+            for _, uid in pairs:
                 self._sensors[uid].capture()
-            images = {
-                uid: self._sensors[uid].get_obs(rgb=True, depth=False, position=False, segmentation=False)["rgb"]
-                for uid in need
+            batch = {
+                key: self._sensors[uid].get_obs(rgb=True, depth=False, position=False, segmentation=False)["rgb"]
+                for key, uid in pairs
             }
-        # The checkpoint's own modality -> camera map (the images are passed as views, uncopied).
-        batch = {key: images[uid] for key, uid in self._drem.camera_of.items()}
         batch["ft"] = self.ft.buffer
         return self._drem(batch)
 
