@@ -1,7 +1,8 @@
 """DREM speed, measured side by side in one run and printed as ratios.
 
 1. Reward cost: an ``obs_mode="rgb"`` env step with ``reward_mode="drem"`` against the same
-   step with ``reward_mode="none"`` (target: DREM adds at most 15 %).
+   step with ``reward_mode="none"`` (target: DREM adds at most 15 %), one env switched between
+   the two (and the straightforward path) step by step; and the reward's own time in the step.
 2. Backward sampling: children per second (restore the seed state, step, render) against
    plain ``rgb`` env steps per second (target: at least 0.7).
 3. Reward-model training: samples per second on this CPU (forward, backward, Adam step).
@@ -9,7 +10,7 @@
 Run: ``.venv/bin/python bench/reward_speed.py --checkpoint rewards/PegInHole-v1/drem.pt``
 (``--quick`` for a smoke run, ``--parts reward`` for the first measurement only). Writes the
 numbers to ``--out`` as JSON too. The reward is measured twice: as shipped, and through the
-straightforward ``model.encode(model.prepare(...))`` path it replaced, in the same rounds.
+straightforward ``model.encode(model.prepare(...))`` path it replaced, in the same run.
 """
 
 from __future__ import annotations
@@ -47,41 +48,68 @@ def time_steps(env, steps: int, seed: int = 0) -> list:
 
 
 def bench_reward(task: str, checkpoint: str, steps: int) -> dict:
-    """Median step time without the reward, with DREM and with DREM's straightforward path, interleaved."""
-    plain = gym.make(task, obs_mode="rgb", reward_mode="none")
-    drem = gym.make(task, obs_mode="rgb", reward_mode="drem", drem_checkpoint=checkpoint)
-    # The same reward through model.encode(model.prepare(...)): what the fast encoder replaced.
-    straight = gym.make(task, obs_mode="rgb", reward_mode="drem", drem_checkpoint=checkpoint)
-    model = straight.unwrapped._drem
-    model.forward = model.forward_reference
-    # The reward's own time inside each step: the step-time difference above also carries the
-    # noise between two env instances (about 0.5 ms here), this does not.
-    reward_times = []
-    inner = drem.unwrapped.compute_drem_reward
+    """Median step times of one env switched step by step between no reward and DREM (then its straightforward path)."""
+    env = gym.make(task, obs_mode="rgb", reward_mode="drem", drem_checkpoint=checkpoint)
+    u = env.unwrapped
+    reward = u._drem
+    # One env instance for all three, switched between steps: two instances differed by about
+    # 0.5 ms a step here, a third of what is measured.
+    modes = {
+        "none": ("none", reward.forward),
+        "drem": ("drem", reward.forward),
+        # The same reward through model.encode(model.prepare(...)): what the fast encoder replaced.
+        "straight": ("drem", reward.forward_reference),
+    }
+    reward_times, timing = [], [False]
+    inner = u.compute_drem_reward
 
     def timed_reward(**kwargs):
+        # The reward's own time inside each step.
         t = time.perf_counter()
         out = inner(**kwargs)
-        reward_times.append(time.perf_counter() - t)
+        if timing[0]:
+            reward_times.append(time.perf_counter() - t)
         return out
 
-    drem.unwrapped.compute_drem_reward = timed_reward
-    envs = (plain, drem, straight)
-    for env in envs:
-        time_steps(env, 5)  # warm-up
-    times = [[] for _ in envs]
-    for r in range(4):  # alternate so machine noise hits all alike
-        for env, t in zip(envs, times):
-            t += time_steps(env, steps // 4, seed=r)
-    for env in envs:
-        env.close()
-    pa, pb, pc = (statistics.median(t) for t in times)
-    pr = statistics.median(reward_times[5:])
+    u.compute_drem_reward = timed_reward
+    # Two rounds, each alternating blocks of plain steps and steps with the reward; the first
+    # step of a block is not timed, so no timed step follows one of the other kind (a step with
+    # the straightforward reward slows the plain step after it: its memory traffic).
+    times = {"none": [], "drem": [], "none_2": [], "straight": []}
+    blocks = {"none": [], "drem": [], "none_2": [], "straight": []}  # per-block medians
+    env.reset(seed=0)
+    gen = torch.Generator().manual_seed(0)
+    block = 5
+    for pair in (("none", "drem"), ("none_2", "straight")):
+        for k in range(2 * block * (steps // (block - 1) + 2)):
+            mode = pair[k // block % 2]
+            u._reward_mode, reward.forward = modes[mode.split("_")[0]]
+            timing[0] = mode == "drem"
+            action = torch.rand(1, 6, generator=gen) * 2 - 1
+            t = time.perf_counter()
+            _, _, terminated, truncated, _ = env.step(action)
+            if k % block and k >= 2 * block:  # not the first of a block, nor the first round
+                times[mode].append(time.perf_counter() - t)
+                if k % block == block - 1:
+                    blocks[mode].append(statistics.median(times[mode][1 - block :]))
+            if bool(terminated.any() or truncated.any()):
+                env.reset()
+    env.close()
+    pa, pb, pa2, pc = (statistics.median(times[m]) for m in times)
+    pr = statistics.median(reward_times[4:])
+
+    def paired(base, case):
+        # Each block against the plain block just before it: the machine's speed drifts over a
+        # run (here by 20 % between runs), and neighbouring blocks share the drift.
+        diffs = [(b - a) / a for a, b in zip(blocks[base], blocks[case])]
+        return statistics.median(diffs), statistics.quantiles(diffs, n=4)[::2]
+
+    (overhead, overhead_iqr) = paired("none", "drem")
     return dict(
-        rgb_step_ms=pa * 1e3, drem_step_ms=pb * 1e3, drem_overhead=(pb - pa) / pa,
-        reward_in_step_ms=pr * 1e3, reward_share=pr / pa,
-        drem_straight_step_ms=pc * 1e3, drem_straight_overhead=(pc - pa) / pa,
-        threads=torch.get_num_threads(), load_avg=os.getloadavg()[0],
+        drem_overhead=overhead, drem_overhead_quartiles=overhead_iqr,
+        rgb_step_ms=pa * 1e3, drem_step_ms=pb * 1e3, reward_in_step_ms=pr * 1e3, reward_share=pr / pa,
+        drem_straight_step_ms=pc * 1e3, drem_straight_overhead=paired("none_2", "straight")[0],
+        steps_each=len(times["none"]), block_pairs=len(blocks["drem"]), threads=torch.get_num_threads(), load_avg=os.getloadavg()[0],
     )
 
 
@@ -130,7 +158,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="PegInHole-v1")
     parser.add_argument("--checkpoint", default=None, help="default: the shipped one for --task")
-    parser.add_argument("--steps", type=int, default=80)
+    parser.add_argument("--steps", type=int, default=300, help="steps per measured case")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", default="outputs/bench/reward_speed.json")
     parser.add_argument("--parts", nargs="+", choices=("reward", "sampling", "training"), default=("reward", "sampling", "training"))
@@ -143,7 +171,8 @@ def main() -> None:
         r = res["reward"] = bench_reward(args.task, checkpoint, steps)
         print(f"rgb env step            {r['rgb_step_ms']:7.1f} ms   ({r['threads']} torch threads, load average {r['load_avg']:.2f})")
         print(f"DREM reward in the step {r['reward_in_step_ms']:7.1f} ms   -> {100 * r['reward_share']:.1f} % of the rgb step (target <= 15 %)")
-        print(f"rgb env step + DREM     {r['drem_step_ms']:7.1f} ms   -> step-time difference {100 * r['drem_overhead']:.1f} % (two env instances)")
+        print(f"rgb env step + DREM     {r['drem_step_ms']:7.1f} ms   -> step-time difference {100 * r['drem_overhead']:.1f} % (same env, median of {r['block_pairs']} paired blocks; "
+              f"quartiles {100 * r['drem_overhead_quartiles'][0]:.0f} to {100 * r['drem_overhead_quartiles'][1]:.0f} %)")
         print(f"  straightforward path  {r['drem_straight_step_ms']:7.1f} ms   -> adds {100 * r['drem_straight_overhead']:.1f} % (model.encode(model.prepare(...)))")
     if "sampling" in args.parts:
         s = res["sampling"] = bench_sampling(args.task, steps)
