@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from mani_skill.utils.wrappers.record import RecordEpisode
 
-from drem_maniskill.scripted import episode_horizon, get_policy
+from drem_maniskill.scripted import ee_control_kwargs, episode_horizon, get_policy
 
 
 @dataclass
@@ -37,15 +37,6 @@ class RecordResult:
         return sum(self.success) / max(len(self.success), 1)
 
 
-def _is_ours(env_id: str) -> bool:
-    from mani_skill.utils.registration import REGISTERED_ENVS
-
-    from drem_maniskill.envs.insertion_base import InsertionEnv
-
-    spec = REGISTERED_ENVS.get(env_id.split(":")[-1])
-    return spec is not None and issubclass(spec.cls, InsertionEnv)
-
-
 def record_expert(
     env_id: str,
     out_dir: str,
@@ -60,11 +51,7 @@ def record_expert(
     """Roll out a scripted policy (a name, or a callable ``obs -> action``) on ``seeds``; save with ``RecordEpisode``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env_kwargs = dict(env_kwargs or {})
-    # On ManiSkill's own tasks record with end-effector deltas (their default is joint deltas), the
-    # control mode DREM's sampler and examination share with our tasks.
-    if not _is_ours(env_id) and "control_mode" not in env_kwargs:
-        env_kwargs["control_mode"] = "pd_ee_delta_pose"
+    env_kwargs = ee_control_kwargs(env_id, env_kwargs)
     env = gym.make(env_id, obs_mode=obs_mode, render_mode="rgb_array" if save_video else None, **env_kwargs)
     # info_on_video crashes with numpy 2.4 in ManiSkill 3.0.1; keep it off.
     env = RecordEpisode(

@@ -25,6 +25,7 @@ import torch
 
 from mani_skill.utils.geometry.rotation_conversions import quaternion_to_axis_angle, quaternion_to_matrix
 
+from drem_maniskill.envs import is_insertion_task
 from drem_maniskill.envs.agent import EE_POS_LIMIT, EE_ROT_LIMIT
 
 POLICY_NAMES = ("expert", "direct_success", "align_success", "search_fail", "random")
@@ -67,6 +68,18 @@ def _socket_to_world(env, vec_xy: torch.Tensor) -> torch.Tensor:
     """Rotate ``[B, 2]`` vectors from the socket frame to the world frame."""
     rot = quaternion_to_matrix(env.socket.pose.q)
     return torch.einsum("bij,bj->bi", rot[:, :2, :2], vec_xy)
+
+
+def ee_control_kwargs(env_id: str, env_kwargs: dict | None = None) -> dict:
+    """``env_kwargs`` with ``control_mode='pd_ee_delta_pose'`` on ManiSkill's own tasks unless given.
+
+    Their default is joint deltas; the stock experts, the sampler and the examination command
+    end-effector deltas, as on our tasks (whose default that already is).
+    """
+    kwargs = dict(env_kwargs or {})
+    if not is_insertion_task(env_id):
+        kwargs.setdefault("control_mode", "pd_ee_delta_pose")
+    return kwargs
 
 
 def require_ee_control(env, who: str = "scripted policies") -> None:
@@ -283,12 +296,7 @@ def success_rate(env_id: str, name: str = "expert", seeds=range(100), env_kwargs
     import gymnasium as gym
     from tqdm import tqdm
 
-    from drem_maniskill.recording import _is_ours
-
-    kwargs = dict(env_kwargs or {})
-    if not _is_ours(env_id):
-        kwargs.setdefault("control_mode", "pd_ee_delta_pose")  # what the stock experts command
-    env = gym.make(env_id, obs_mode="state_dict", **kwargs)
+    env = gym.make(env_id, obs_mode="state_dict", **ee_control_kwargs(env_id, env_kwargs))
     policy = get_policy(name, env)
     outcomes, lengths = [], []
     horizon = episode_horizon(env)

@@ -76,14 +76,14 @@ def _make_env(env_id: str, checkpoint: str, env_kwargs: dict | None):
     """Our task with ``reward_mode="drem"``, or a stock task wrapped by ``DREMRewardWrapper``."""
     import gymnasium as gym
 
-    from drem_maniskill.recording import _is_ours
+    from drem_maniskill.envs import is_insertion_task
+    from drem_maniskill.scripted import ee_control_kwargs
 
-    if _is_ours(env_id):
+    if is_insertion_task(env_id):
         return gym.make(env_id, obs_mode="state_dict", reward_mode="drem", drem_checkpoint=str(checkpoint), **(env_kwargs or {}))
     from drem_maniskill.drem.wrapper import DREMRewardWrapper
 
-    kwargs = {"control_mode": "pd_ee_delta_pose", **(env_kwargs or {})}
-    return DREMRewardWrapper(gym.make(env_id, obs_mode="state_dict", **kwargs), checkpoint)
+    return DREMRewardWrapper(gym.make(env_id, obs_mode="state_dict", **ee_control_kwargs(env_id, env_kwargs)), checkpoint)
 
 
 def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float] | None:
@@ -102,10 +102,10 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
     On ManiSkill's own tasks the examination policies are ``STOCK_EXAMINATION`` (direct_success
     is the stock expert there). The value-order correlation is over the expert's successful episodes.
     """
-    from drem_maniskill.recording import _is_ours
+    from drem_maniskill.envs import is_insertion_task
     from drem_maniskill.stock_experts import STOCK_EXPERTS
 
-    if not _is_ours(env_id):
+    if not is_insertion_task(env_id):
         allowed = STOCK_EXAMINATION if env_id in STOCK_EXPERTS else ("random",)
         policies = [p for p in (STOCK_EXAMINATION if tuple(policies) == EXAMINATION else policies) if p in allowed]
     env = _make_env(env_id, checkpoint, env_kwargs)

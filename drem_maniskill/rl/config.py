@@ -92,9 +92,9 @@ class RLConfig:
 
         Never on ManiSkill's own tasks: they have no F/T sensor.
         """
-        from drem_maniskill.recording import _is_ours
+        from drem_maniskill.envs import is_insertion_task
 
-        if not _is_ours(self.task):
+        if not is_insertion_task(self.task):
             return False
         return self.reward == "drem" if self.policy_ft is None else bool(self.policy_ft)
 

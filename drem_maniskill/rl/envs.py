@@ -147,13 +147,14 @@ def _make_stock_env(config, for_eval: bool):
     from drem_maniskill.drem.adapter import camera_map_for
     from drem_maniskill.drem.reward import default_checkpoint
     from drem_maniskill.drem.wrapper import DREMRewardWrapper
+    from drem_maniskill.scripted import ee_control_kwargs
 
     if config.reward not in STOCK_REWARDS:
         raise ValueError(f"on ManiSkill's own {config.task} the rewards are {list(STOCK_REWARDS)} "
                          f"(drem: rewards/{config.task}/drem.pt), not {config.reward!r}")
-    kwargs = dict(obs_mode="rgb", reward_mode="sparse", control_mode="pd_ee_delta_pose",
-                  num_envs=1 if for_eval else config.num_envs, sim_backend=config.sim_backend, **config.env_kwargs)
-    env = gym.make(config.task, **kwargs)
+    kwargs = ee_control_kwargs(config.task, config.env_kwargs)
+    env = gym.make(config.task, obs_mode="rgb", reward_mode="sparse", num_envs=1 if for_eval else config.num_envs,
+                   sim_backend=config.sim_backend, **kwargs)
     if config.reward == "drem":
         path = default_checkpoint(config.task)
         if not path.exists():
@@ -168,9 +169,9 @@ def _make_stock_env(config, for_eval: bool):
 def make_env(config, vice_goal_examples=None, shared_vice=None, for_eval: bool = False):
     """The wrapped ManiSkill env of a config: ``(env, vice_wrapper_or_None)``; rgb obs rendered at 128 px."""
     import drem_maniskill  # noqa: F401  (registers the tasks)
-    from drem_maniskill.recording import _is_ours
+    from drem_maniskill.envs import is_insertion_task
 
-    if not _is_ours(config.task):
+    if not is_insertion_task(config.task):
         return _make_stock_env(config, for_eval)
     spec = reward_spec(config.reward)
     kwargs = dict(obs_mode="rgb", reward_mode=spec.reward_mode, num_envs=1 if for_eval else config.num_envs,
