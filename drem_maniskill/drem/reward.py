@@ -297,6 +297,8 @@ class DREMReward(nn.Module):
             raise CheckpointError(f"checkpoint weights do not match its model config: missing {missing[:5]}, unexpected {unexpected[:5]}")
         self.register_buffer("h_goal", weights["h_goal"].float())
         self.register_buffer("h_start", weights["h_start"].float())
+        uids = header.get("camera_uids") or [CAMERA_OF[c] for c in config.cameras]
+        self._camera_pairs = tuple(zip(config.cameras, uids))
         self.model.eval()
         self.requires_grad_(False)
 
@@ -327,10 +329,7 @@ class DREMReward(nn.Module):
 
     @property
     def camera_pairs(self) -> tuple:
-        """``camera_of`` as ``(modality, uid)`` pairs, built once: the env step reads it."""
-        if getattr(self, "_camera_pairs", None) is None:
-            uids = self.header.get("camera_uids") or [CAMERA_OF[c] for c in self.model.config.cameras]
-            self._camera_pairs = tuple(zip(self.model.config.cameras, uids))
+        """``camera_of`` as ``(modality, uid)`` pairs, built once at load: the env step reads it."""
         return self._camera_pairs
 
     def inputs_from_obs(self, obs: dict) -> dict:
