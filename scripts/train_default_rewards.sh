@@ -4,11 +4,15 @@
 # Scale is set for this 2-core CPU machine (M=200, 2000 iterations at 64 px); the paper's is
 # M=500 and 20k iterations at 128 px. Each stage resumes after an interruption.
 #   bash scripts/train_default_rewards.sh [TASK ...]      (default: both tasks)
+# M, ITERS and EPISODES (held-out examination seeds) override the scale; IMAGE_BASELINE=0 skips
+# the image-only baseline (scripts/train_stock_rewards.sh, whose tasks have no F/T anyway).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 BIN=.venv/bin/drem-maniskill
 M=${M:-200}
 ITERS=${ITERS:-2000}
+EPISODES=${EPISODES:-20}
+IMAGE_BASELINE=${IMAGE_BASELINE:-1}
 tasks=("$@")
 [ ${#tasks[@]} -gt 0 ] || tasks=(PegInHole-v1 USBInsertion-v1)
 for task in "${tasks[@]}"; do
@@ -17,14 +21,15 @@ for task in "${tasks[@]}"; do
   [ -f "$out/tree.h5" ] || $BIN sample --expert "$out/expert/expert.h5" --out "$out/tree.h5" --num-children "$M"
   $BIN train-reward --dataset "$out/tree.h5" --out "$out/reward" --preset quick --iterations "$ITERS" --threads 1
   # Quality on held-out seeds 0-19 (the expert demo used seed 1000).
-  $BIN examine --task "$task" --checkpoint "$out/reward/drem.pt" --out "$out/examination" --episodes 20
+  $BIN examine --task "$task" --checkpoint "$out/reward/drem.pt" --out "$out/examination" --episodes "$EPISODES"
   mkdir -p "rewards/$task"
   cp "$out/reward/drem.pt" "rewards/$task/drem.pt"
   cp "$out/examination/quality.json" "rewards/$task/quality.json"
   cp "$out/examination/examination.png" "rewards/$task/examination.png"
+  [ "$IMAGE_BASELINE" = 1 ] || continue
   # The paper's "Image learned" baseline: the same model and tree without the F/T input.
   $BIN train-reward --dataset "$out/tree.h5" --out "$out/reward_image" --preset quick --iterations "$ITERS" --threads 1 --modalities fixed wrist
-  $BIN examine --task "$task" --checkpoint "$out/reward_image/drem.pt" --out "$out/examination_image" --episodes 20
+  $BIN examine --task "$task" --checkpoint "$out/reward_image/drem.pt" --out "$out/examination_image" --episodes "$EPISODES"
   cp "$out/reward_image/drem.pt" "rewards/$task/drem_image.pt"
   cp "$out/examination_image/quality.json" "rewards/$task/quality_image.json"
   cp "$out/examination_image/examination.png" "rewards/$task/examination_image.png"
