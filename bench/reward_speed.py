@@ -27,9 +27,10 @@ import numpy as np
 import torch
 
 import drem_maniskill  # noqa: F401
-from drem_maniskill.drem.model import DREMModel, ModelConfig, cosine_distance, reconstruction_loss
-from drem_maniskill.drem.reward import default_checkpoint
-from drem_maniskill.drem.sampling import ChildSampler
+from drem_maniskill.drem.checkpoint import default_checkpoint
+from drem_maniskill.drem.model import DREMModel, ModelConfig, cosine_distance
+from drem_maniskill.pipeline.losses import reconstruction_loss
+from drem_maniskill.pipeline.sampling import ChildSampler
 
 
 def time_steps(env, steps: int, seed: int = 0) -> list:
@@ -51,7 +52,7 @@ def bench_reward(task: str, checkpoint: str, steps: int) -> dict:
     """Median step times of one env switched step by step between no reward and DREM (then its straightforward path)."""
     env = gym.make(task, obs_mode="rgb", reward_mode="drem", drem_checkpoint=checkpoint)
     u = env.unwrapped
-    reward = u._drem
+    reward = u.drem_reward
     # One env instance for all three, switched between steps: two instances differed by about
     # 0.5 ms a step here, a third of what is measured.
     modes = {

@@ -28,8 +28,11 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 
 from drem_maniskill.rl.config import RLConfig  # noqa: E402
-from drem_maniskill.rl.envs import REWARDS, ManiSkillDictVecEnv, make_env, max_episode_steps  # noqa: E402
-from drem_maniskill.rl.train import build_sac  # noqa: E402
+from drem_maniskill.rl.algos import algo_spec  # noqa: E402
+from drem_maniskill.rl.rewards import REWARDS  # noqa: E402
+from drem_maniskill.rl.run_env import make_env  # noqa: E402
+from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv  # noqa: E402
+from drem_maniskill.utils.episodes import max_episode_steps  # noqa: E402
 
 
 class Timer:
@@ -61,7 +64,7 @@ def random_step_ms(env, n: int) -> float:
 def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_steps: int, none_ms: float) -> dict:
     """Time one reward in one preset; the numbers of one table row."""
     config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
-                             vice=dict(seed=0), vice_goal_seeds=3, out=tempfile.mkdtemp())
+                             reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp())
     torch.set_num_threads(config.threads)
     env, vice = make_env(config)
     u = env.unwrapped
@@ -72,7 +75,7 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     else:
         reward_timer = u.get_reward = Timer(u.get_reward)
     venv = ManiSkillDictVecEnv(env, max_episode_steps(task))
-    model = build_sac(config, venv)
+    model = algo_spec(config.algo).build(config, venv)
     model.learn(total_timesteps=warmup)  # random actions, no gradient steps yet
     if reward_timer is not None:
         reward_timer.total = reward_timer.calls = 0
@@ -125,7 +128,7 @@ def main(argv=None) -> int:
         none_cfg = RLConfig.preset(preset, task=args.task, reward="sparse")
         import gymnasium as gym
 
-        from drem_maniskill.rl.envs import PolicyObservation
+        from drem_maniskill.rl.observation import PolicyObservation
 
         none_env = PolicyObservation(gym.make(args.task, obs_mode="rgb", reward_mode="none", sim_backend="cpu"),
                                      none_cfg.image_size, none_cfg.cameras, ft=True, state=none_cfg.policy_state)

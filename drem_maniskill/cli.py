@@ -24,7 +24,7 @@ def _cmd_demo(args) -> None:
 
 
 def _cmd_record_expert(args) -> None:
-    from drem_maniskill.recording import record_expert
+    from drem_maniskill.experts import record_expert
 
     seeds = range(args.seed, args.seed + args.episodes)
     try:
@@ -38,14 +38,14 @@ def _cmd_record_expert(args) -> None:
 
 
 def _cmd_scripted_success(args) -> None:
-    from drem_maniskill.scripted import success_rate
+    from drem_maniskill.experts import success_rate
 
     result = success_rate(args.task, args.policy, seeds=range(args.seed, args.seed + args.episodes))
     print(json.dumps(result, indent=2))
 
 
 def _cmd_sample(args) -> None:
-    from drem_maniskill.drem.sampling import SamplerConfig, backward_sample
+    from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
 
     overrides = {k: v for k, v in dict(num_children=args.num_children, num_seeds=args.num_seeds, delta=args.delta,
                                        max_depth=args.max_depth, action_scale=args.action_scale, seed=args.seed,
@@ -58,7 +58,8 @@ def _cmd_sample(args) -> None:
 
 def _cmd_train_reward(args) -> None:
     from drem_maniskill.drem.model import ModelConfig
-    from drem_maniskill.drem.train import TrainConfig, dataset_modalities, train_reward
+    from drem_maniskill.pipeline.dataset import dataset_modalities
+    from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
 
     config = TrainConfig.preset(args.preset)
     # Default: every modality the tree holds (a stock ManiSkill task has no F/T sensor).
@@ -74,7 +75,7 @@ def _cmd_train_reward(args) -> None:
 
 
 def _cmd_examine(args) -> None:
-    from drem_maniskill.drem.evaluate import examine
+    from drem_maniskill.pipeline.examine import examine
 
     result = examine(args.task, args.checkpoint, seeds=range(args.seed, args.seed + args.episodes), out_dir=args.out)
     keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss", "success_rate",
@@ -92,14 +93,14 @@ def _cmd_run_script(args) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``drem-maniskill`` command."""
-    from drem_maniskill.demo import TASKS
+    from drem_maniskill.envs import TASKS
 
     parser = argparse.ArgumentParser(prog="drem-maniskill", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("demo", help="the DREM chain at a small scale on both tasks, with plots")
     p.add_argument("--out", default="outputs/demo", help="output folder (default: %(default)s)")
-    p.add_argument("--tasks", nargs="+", default=list(TASKS), help="task ids (default: both)")
+    p.add_argument("--tasks", nargs="+", default=list(TASKS), help="task ids (default: all of ours, %(default)s)")
     p.add_argument("--episodes", type=int, default=2, help="expert episodes per task (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="first episode seed (default: %(default)s)")
     p.add_argument("--scale", default="demo", choices=["demo", "tiny"], help="demo: minutes here; tiny: for CI")
@@ -177,9 +178,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Entry point of the ``drem-maniskill`` console script."""
     args = build_parser().parse_args(argv)
-    import drem_maniskill  # noqa: F401  (registers the tasks)
+    from drem_maniskill.envs import check_env_id  # registers the tasks
 
     try:
+        # An unknown task id fails here, with the ids we know, rather than deep inside gymnasium.
+        for task in [getattr(args, "task", None), *(getattr(args, "tasks", None) or [])]:
+            if task is not None:
+                check_env_id(task)
         args.func(args)
     except (ValueError, FileNotFoundError) as err:
         # Bad input (unknown reward, missing or mismatched file): the message says the fix.

@@ -1,4 +1,4 @@
-"""The README's main job: the whole DREM chain at a small scale, with plots, on both tasks.
+"""The README's main job: the whole DREM chain at a small scale, with plots, on every task of ``envs.TASKS``.
 
 For each task: record expert episodes with ``RecordEpisode`` (ManiSkill's .h5/.json), build a
 task progress tree by backward sampling from the first episode, train the progress model, and
@@ -27,9 +27,13 @@ from typing import Sequence
 import h5py
 import numpy as np
 
-from drem_maniskill.recording import record_expert
+import gymnasium as gym
 
-TASKS = ("PegInHole-v1", "USBInsertion-v1")
+from drem_maniskill.envs import TASKS
+from drem_maniskill.experts import record_expert
+from drem_maniskill.pipeline.examine import examine
+from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
+from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
 
 
 def image_strip(frames: np.ndarray, count: int = 8) -> np.ndarray:
@@ -86,15 +90,9 @@ SCALES = {
 def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: int = 2, seed: int = 0,
              scale: str = "demo", drem: bool = True) -> dict:
     """Record expert episodes per task, draw them, and (``drem``) run the DREM chain on them."""
-    from drem_maniskill.drem.evaluate import examine
-    from drem_maniskill.drem.sampling import SamplerConfig, backward_sample
-    from drem_maniskill.drem.train import TrainConfig, train_reward
-
     if scale not in SCALES:
         raise ValueError(f"unknown demo scale {scale!r}; choose one of {list(SCALES)}")
     sc = SCALES[scale]
-    import gymnasium as gym
-
     root = Path(out)
     summary = {}
     for task in tasks:

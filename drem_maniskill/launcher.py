@@ -23,7 +23,7 @@ from pathlib import Path
 def _register_everywhere() -> None:
     import multiprocessing
 
-    import drem_maniskill  # noqa: F401  (registers the ids before the script looks them up)
+    import drem_maniskill.envs  # noqa: F401  (registers the ids before the script looks them up)
 
     # Vector envs in worker processes (ppo_cpu.py: AsyncVectorEnv with "forkserver") make their
     # envs in processes forked from the fork server, which imports these modules first.

@@ -12,8 +12,8 @@ import gymnasium as gym
 import matplotlib.pyplot as plt
 import numpy as np
 
-import drem_maniskill  # noqa: F401
-from drem_maniskill.scripted import get_policy
+from drem_maniskill.envs import TASKS
+from drem_maniskill.experts import get_policy
 
 
 def main() -> None:
@@ -24,7 +24,7 @@ def main() -> None:
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    for task in ("PegInHole-v1", "USBInsertion-v1"):
+    for task in TASKS:
         for style in args.style:
             env = gym.make(task, obs_mode="rgb", render_style=style)
             policy = get_policy("expert", env)

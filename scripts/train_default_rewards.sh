@@ -3,7 +3,7 @@
 # rewards/<task>/drem_image.pt (same tree, --modalities fixed wrist), as their model cards say.
 # Scale is set for this 2-core CPU machine (M=200, 2000 iterations at 64 px); the paper's is
 # M=500 and 20k iterations at 128 px. Each stage resumes after an interruption.
-#   bash scripts/train_default_rewards.sh [TASK ...]      (default: both tasks)
+#   bash scripts/train_default_rewards.sh [TASK ...]      (default: every task of drem_maniskill.envs.TASKS)
 # M, ITERS and EPISODES (held-out examination seeds) override the scale; IMAGE_BASELINE=0 skips
 # the image-only baseline (scripts/train_stock_rewards.sh, whose tasks have no F/T anyway).
 set -euo pipefail
@@ -14,7 +14,7 @@ ITERS=${ITERS:-2000}
 EPISODES=${EPISODES:-20}
 IMAGE_BASELINE=${IMAGE_BASELINE:-1}
 tasks=("$@")
-[ ${#tasks[@]} -gt 0 ] || tasks=(PegInHole-v1 USBInsertion-v1)
+[ ${#tasks[@]} -gt 0 ] || mapfile -t tasks < <(.venv/bin/python -c "from drem_maniskill.envs import TASKS; print(*TASKS, sep='\n')")
 for task in "${tasks[@]}"; do
   out=outputs/default/$task
   [ -f "$out/expert/expert.h5" ] || $BIN record-expert --task "$task" --seed 1000 --episodes 1 --out "$out/expert"

@@ -14,11 +14,10 @@ from drem_maniskill.baselines.vice import (
     VICEClassifier,
     VICEConfig,
     VICERewardWrapper,
-    collect_goal_examples,
     goal_examples_from_h5,
     preprocess,
 )
-from drem_maniskill.scripted import get_policy
+from drem_maniskill.experts import collect_goal_examples, get_policy
 from tests.conftest import TASKS, make_env
 
 CAMS = ("fixed_camera", "wrist_camera")

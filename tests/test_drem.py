@@ -13,9 +13,9 @@ import torch
 from drem_maniskill.drem.checkpoint import CheckpointError, check_compatible, load_checkpoint, save_checkpoint
 from drem_maniskill.drem.model import DREMModel, ModelConfig
 from drem_maniskill.drem.reward import DREMReward
-from drem_maniskill.drem.sampling import NoStartRegionError, SamplerConfig, backward_sample
-from drem_maniskill.drem.train import TrainConfig, train_reward
-from drem_maniskill.recording import record_expert
+from drem_maniskill.pipeline.sampling import NoStartRegionError, SamplerConfig, backward_sample
+from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
+from drem_maniskill.experts.recording import record_expert
 
 
 @pytest.fixture(scope="session")
@@ -199,7 +199,7 @@ def test_reward_is_normalised_by_the_expert(pipeline):
 
 @pytest.mark.slow
 def test_reward_mode_drem_in_every_obs_mode(pipeline):
-    from drem_maniskill.scripted import get_policy
+    from drem_maniskill.experts import get_policy
 
     results = {}
     for obs_mode in ("rgb", "state", "none"):
@@ -246,7 +246,7 @@ def test_wrapper_replaces_the_reward_and_keeps_the_original(pipeline):
 def test_shipped_checkpoints_load_by_default(task):
     env = gym.make(task, obs_mode="state", reward_mode="drem")
     try:
-        header = env.unwrapped._drem.header
+        header = env.unwrapped.drem_reward.header
         assert header["env_id"] == task and header["modalities"] == ["fixed", "wrist", "ft"]
         env.reset(seed=0)
         _, reward, *_ = env.step(torch.zeros(1, 6))
@@ -260,16 +260,17 @@ def test_shipped_checkpoints_load_by_default(task):
 def test_shipped_expert_demos_reach_the_goal(task):
     from pathlib import Path
 
-    from drem_maniskill.drem.sampling import _broadcast, _state_at, load_expert
+    from drem_maniskill.pipeline.sampling import load_expert
+    from drem_maniskill.utils.state import broadcast_state, state_at
 
     expert = load_expert(str(Path(__file__).parents[1] / "tasks" / task / "expert.h5"))
     assert expert.env_id == task and expert.episode_seed == 1000 and expert.length > 5
     env = gym.make(task, obs_mode="state_dict")
     try:
         env.reset(seed=expert.episode_seed)
-        env.unwrapped.set_state_dict(_broadcast(_state_at(expert.states, 0), 1))
+        env.unwrapped.set_state_dict(broadcast_state(state_at(expert.states, 0), 1))
         assert env.unwrapped.in_start_region().item()
-        env.unwrapped.set_state_dict(_broadcast(_state_at(expert.states, expert.length - 1), 1))
+        env.unwrapped.set_state_dict(broadcast_state(state_at(expert.states, expert.length - 1), 1))
         assert env.unwrapped.evaluate()["success"].item()
     finally:
         env.close()

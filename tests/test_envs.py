@@ -53,7 +53,7 @@ def test_reward_modes(task):
 @pytest.mark.parametrize("task", TASKS)
 def test_dense_reward_rises_along_the_expert(task):
     env = make_env(task, obs_mode="state_dict", reward_mode="normalized_dense")
-    from drem_maniskill.scripted import get_policy
+    from drem_maniskill.experts import get_policy
 
     policy = get_policy("expert", env)
     obs, _ = env.reset(seed=2)
@@ -122,7 +122,7 @@ def test_colours_fixed_when_not_randomized():
 
 def _press_until_contact(env, steps: int = 12):
     """Drive the tip down next to the opening so that it presses on the socket's top face."""
-    from drem_maniskill.scripted import get_policy
+    from drem_maniskill.experts import get_policy
 
     policy = get_policy("expert", env)
     u = env.unwrapped
@@ -293,7 +293,7 @@ def test_usb_enters_only_one_way_up():
 
             u.socket.set_pose(Pose.create_from_pq(pose.p, quaternion_multiply(_yaw_quat(torch.tensor([math.pi])), pose.q)))
             u.yaw_symmetry = 2
-        from drem_maniskill.scripted import get_policy
+        from drem_maniskill.experts import get_policy
 
         policy = get_policy("expert", env)
         u.yaw_symmetry = 2 if flipped else 1

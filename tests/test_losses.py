@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from drem_maniskill.drem.losses import triplet_loss
+from drem_maniskill.pipeline.losses import triplet_loss
 from drem_maniskill.drem.model import cosine_distance
 
 
@@ -60,7 +60,7 @@ def test_cosine_distance():
 
 
 def test_pooled_spearman_uses_every_step_and_skips_constant_signals():
-    from drem_maniskill.drem.evaluate import _pooled_spearman
+    from drem_maniskill.pipeline.examine import _pooled_spearman
 
     eps = [dict(rewards=[0.1, 0.2, 0.3], normalized_dense=[1.0, 2.0, 4.0]),
            dict(rewards=[0.5, 0.4], normalized_dense=[5.0, 4.5])]

@@ -23,7 +23,7 @@ import torch
 import drem_maniskill  # noqa: F401  (registers the tasks; conftest imports it too)
 from drem_maniskill.envs.peg_in_hole import PegInHoleEnv
 from drem_maniskill.envs.usb_insertion import USBInsertionEnv
-from drem_maniskill.scripted import get_policy
+from drem_maniskill.experts import get_policy
 
 ENV_ID = "PegInHole-v1"
 IDS = {"PegInHole-v1": PegInHoleEnv, "USBInsertion-v1": USBInsertionEnv}

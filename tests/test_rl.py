@@ -9,7 +9,7 @@ import pytest
 
 from drem_maniskill.rl import REWARDS, RLConfig, reward_spec
 from drem_maniskill.rl.compare import compare_runs, steps_to_reach
-from drem_maniskill.rl.train import EVAL_COLUMNS, latest_checkpoint, read_eval_csv
+from drem_maniskill.rl.train_policy import EVAL_COLUMNS, latest_checkpoint, read_eval_csv
 
 
 def _tiny(tmp_path, reward="dense", **kw) -> RLConfig:
@@ -30,11 +30,11 @@ def test_unknown_reward_is_a_clear_error(capsys):
 
 
 def test_missing_image_only_checkpoint_names_the_file(tmp_path, monkeypatch):
-    import drem_maniskill.drem.reward as reward
+    import drem_maniskill.drem.checkpoint as checkpoints
 
-    monkeypatch.setattr(reward, "default_checkpoint", lambda task, image_only=False: tmp_path / task / "drem_image.pt")
+    monkeypatch.setattr(checkpoints, "default_checkpoint", lambda task, image_only=False: tmp_path / task / "drem_image.pt")
     with pytest.raises(FileNotFoundError, match=r"drem_image\.pt.*train-reward .*--modalities fixed wrist"):
-        REWARDS["drem-image"].env_kwargs("PegInHole-v1")
+        REWARDS["drem-image"].make("PegInHole-v1", {})
 
 
 def test_paper_preset_gives_ft_only_to_drem():
@@ -81,7 +81,7 @@ def test_compare_two_fake_runs(tmp_path):
 
 @pytest.mark.slow
 def test_train_policy_tiny_writes_eval_csv_and_checkpoint(tmp_path):
-    from drem_maniskill.rl.train import train_policy
+    from drem_maniskill.rl.train_policy import train_policy
 
     result = train_policy(_tiny(tmp_path))
     run = tmp_path / "run"
@@ -101,7 +101,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(tmp_path):
     """Interrupt after the step-32 checkpoint (VICE, so its state is checkpointed too); rerun continues from 32."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from drem_maniskill.rl.train import train_policy
+    from drem_maniskill.rl.train_policy import train_policy
 
     class Interrupt(BaseCallback):
         def _on_step(self):
@@ -109,8 +109,8 @@ def test_interrupted_run_resumes_from_its_checkpoint(tmp_path):
                 raise KeyboardInterrupt
             return True
 
-    config = _tiny(tmp_path, reward="vice", vice=dict(update_every=16, train_steps=2, batch_size=8, buffer_size=256),
-                   vice_goal_seeds=1)
+    config = _tiny(tmp_path, reward="vice",
+                   reward_kwargs=dict(update_every=16, train_steps=2, batch_size=8, buffer_size=256, goal_seeds=1))
     with pytest.raises(KeyboardInterrupt):
         train_policy(config, callbacks=[Interrupt()])
     assert latest_checkpoint(tmp_path / "run").name == "step_32"
@@ -149,12 +149,12 @@ def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
 
     import torch
 
-    import drem_maniskill.drem.reward as reward
-    from drem_maniskill.rl.envs import make_env
+    import drem_maniskill.drem.checkpoint as checkpoints
+    from drem_maniskill.rl.run_env import make_env
     from tests.test_aliases import tiny_stock_checkpoint
 
     ckpt = Path(tiny_stock_checkpoint(tmp_path / "drem.pt", env_id="PlugCharger-v1"))
-    monkeypatch.setattr(reward, "default_checkpoint", lambda task, image_only=False: ckpt if task == "PlugCharger-v1" else None)
+    monkeypatch.setattr(checkpoints, "default_checkpoint", lambda task, image_only=False: ckpt if task == "PlugCharger-v1" else None)
     sparse = RLConfig.preset("light", task="PlugCharger-v1", reward="sparse")
     assert not sparse.uses_ft
     env, vice = make_env(sparse, for_eval=True)

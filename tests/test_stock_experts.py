@@ -15,8 +15,8 @@ import pytest
 import torch
 
 import drem_maniskill  # noqa: F401
-from drem_maniskill.scripted import get_policy, success_rate
-from drem_maniskill.stock_experts import PegInsertionSideExpert, PlugChargerExpert
+from drem_maniskill.experts import get_policy, success_rate
+from drem_maniskill.experts.stock import PegInsertionSideExpert, PlugChargerExpert
 
 
 @pytest.mark.parametrize("env_id", ["PegInsertionSide-v1", "PlugCharger-v1"])
@@ -84,7 +84,7 @@ def test_record_expert_on_a_stock_task_with_video(tmp_path):
     ``RecordEpisode(info_on_video=True)`` crashes with numpy 2.4 in ManiSkill 3.0.1; the recorder
     keeps it off, so a video of a stock task is written all the same.
     """
-    from drem_maniskill.recording import record_expert
+    from drem_maniskill.experts.recording import record_expert
 
     rec = record_expert("PlugCharger-v1", str(tmp_path), seeds=[0], save_video=True)
     assert rec.success == [True] and rec.lengths[0] < 100

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 import drem_maniskill  # noqa: F401
-from drem_maniskill.drem.adapter import adapter_for
+from drem_maniskill.envs.adapter import adapter_for
 
 STOCK = "PegInsertionSide-v1"
 
@@ -24,9 +24,10 @@ STOCK = "PegInsertionSide-v1"
 @pytest.fixture(scope="module")
 def stock_pipeline(tmp_path_factory):
     from drem_maniskill.drem.model import ModelConfig
-    from drem_maniskill.drem.sampling import SamplerConfig, backward_sample
-    from drem_maniskill.drem.train import TrainConfig, dataset_modalities, train_reward
-    from drem_maniskill.recording import record_expert
+    from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
+    from drem_maniskill.pipeline.dataset import dataset_modalities
+    from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
+    from drem_maniskill.experts.recording import record_expert
 
     root = tmp_path_factory.mktemp("stock")
     def lift(obs):  # six steps up (about 10 cm) with the gripper open: a short stand-in for an expert
@@ -78,7 +79,7 @@ def test_stock_checkpoint_drives_the_wrapper(stock_pipeline):
 @pytest.mark.slow
 def test_training_with_ft_on_a_tree_without_it_is_a_clear_error(stock_pipeline, tmp_path):
     from drem_maniskill.drem.model import ModelConfig
-    from drem_maniskill.drem.train import TrainConfig, train_reward
+    from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
 
     config = TrainConfig.preset("tiny", iterations=1, model=ModelConfig(image_size=64))
     with pytest.raises(ValueError, match="no wrist F/T sensor.*--modalities fixed wrist"):
@@ -136,7 +137,7 @@ def test_register_drem_env_makes_drem_the_stock_tasks_default(stock_pipeline, tm
 
 
 def test_no_scripted_expert_for_a_stock_task_is_a_clear_error():
-    from drem_maniskill.scripted import get_policy
+    from drem_maniskill.experts import get_policy
 
     env = gym.make("PickCube-v1", obs_mode="state", control_mode="pd_ee_delta_pose")
     try:
@@ -154,7 +155,7 @@ def test_examine_a_stock_task_against_its_normalized_dense(stock_pipeline, tmp_p
     and sets DREM beside ManiSkill's own normalized_dense, step by step."""
     from PIL import Image
 
-    from drem_maniskill.drem.evaluate import STOCK_EXAMINATION, examine
+    from drem_maniskill.pipeline.examine import STOCK_EXAMINATION, examine
 
     result = examine(STOCK, stock_pipeline["checkpoint"], seeds=[0], out_dir=str(tmp_path))
     assert tuple(result["curves"]) == STOCK_EXAMINATION

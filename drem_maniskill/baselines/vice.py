@@ -9,7 +9,8 @@ successful are labelled by the task's ``info["success"]``; true ones join the po
 
 Use::
 
-    from drem_maniskill.baselines.vice import VICEConfig, VICERewardWrapper, collect_goal_examples
+    from drem_maniskill.baselines.vice import VICEConfig, VICERewardWrapper
+    from drem_maniskill.experts import collect_goal_examples
 
     cfg = VICEConfig()
     goals = collect_goal_examples("PegInHole-v1", seeds=range(10))   # or goal_examples_from_h5(path)
@@ -25,7 +26,11 @@ Interface for a trainer (e.g. an SB3 callback), all there is:
   (gradient steps; active queries run inside on schedule); log the returned dict;
 * ``wrapper.state_dict()`` / ``wrapper.load_state_dict(sd)`` checkpoint and restore the
   classifier, its optimiser, the buffers, the counters and the sampling RNG
-  (``torch.save``-able).
+  (``torch.save``-able);
+* ``wrapper.evaluation_env(env)`` rewards another env (an evaluation env) with the same
+  classifier, storing nothing.
+
+That is the learned-reward interface of ``drem_maniskill.rl.rewards`` (``LearnedReward``).
 
 Differences from the reference implementation (avisingh599/reward-learning-rl): its VICE
 discriminator puts the policy's ``log pi(a|s)`` beside the classifier's logit; the wrapper
@@ -37,13 +42,15 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Iterable, Optional, Sequence
+from typing import Optional, Sequence
 
 import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from drem_maniskill.utils.cameras import camera_images
 
 
 @dataclass
@@ -138,52 +145,6 @@ class VICEClassifier(nn.Module):
 
 
 # ---------------------------------------------------------------------------- goal examples
-def collect_goal_examples(
-    env_id: str,
-    seeds: Iterable[int],
-    env_kwargs: Optional[dict] = None,
-    cameras: Sequence[str] = VICEConfig.cameras,
-    max_steps: int = 50,
-    env: Optional[gym.Env] = None,
-) -> dict:
-    """Roll out the scripted expert on each seed; the first successful observation's images per seed.
-
-    Returns ``{uid: uint8 [N, H, W, 3]}`` with ``N <= len(seeds)`` (seeds where the expert
-    fails are skipped). Pass ``env`` to reuse an env (made with ``obs_mode="rgb"``; it is
-    reset); otherwise one is made from ``env_id`` and ``env_kwargs`` and closed. Use the RL
-    env's own kwargs (render style, colours, camera sizes) so the goals look like its states.
-    """
-    from drem_maniskill.scripted import get_policy
-
-    own = env is None
-    if own:
-        import drem_maniskill  # noqa: F401  (registers the tasks)
-
-        env = gym.make(env_id, **{**dict(env_kwargs or {}), "obs_mode": "rgb"})
-    try:
-        u = env.unwrapped
-        if u.num_envs != 1:
-            raise ValueError("collect_goal_examples rolls out one seed at a time; use an env with num_envs=1")
-        found = {uid: [] for uid in cameras}
-        for seed in seeds:
-            policy = get_policy("expert", env, seed=int(seed))
-            obs, info = env.reset(seed=int(seed))
-            for _ in range(max_steps):
-                obs, _, terminated, truncated, info = env.step(policy(obs))
-                if bool(info["success"].any()):
-                    for uid in cameras:
-                        found[uid].append(torch.as_tensor(obs["sensor_data"][uid]["rgb"][0]).cpu())
-                    break
-                if bool(truncated.any()) or bool(terminated.any()):
-                    break
-    finally:
-        if own:
-            env.close()
-    if not found[cameras[0]]:
-        raise RuntimeError(f"the expert succeeded on none of the seeds on {env_id}; no goal examples")
-    return {uid: torch.stack(v) for uid, v in found.items()}
-
-
 def goal_examples_from_h5(h5_path: str, cameras: Sequence[str] = VICEConfig.cameras) -> dict:
     """The last observation of every episode of a ManiSkill ``RecordEpisode`` .h5 (obs_mode rgb)."""
     import h5py
@@ -201,7 +162,27 @@ def goal_examples_from_h5(h5_path: str, cameras: Sequence[str] = VICEConfig.came
     return {uid: torch.stack(v) for uid, v in found.items()}
 
 
-# ---------------------------------------------------------------------------- the wrapper
+# ---------------------------------------------------------------------------- the wrappers
+def images_of(env: gym.Env, obs, config: VICEConfig, device) -> torch.Tensor:
+    """The classifier's input ``[B, 3 * cameras, S, S]`` uint8 for ``env``'s current state."""
+    return preprocess(camera_images(env, obs, config.cameras), config.cameras, config.image_size).to(device)
+
+
+class SharedVICEReward(gym.Wrapper):
+    """Reward an env with the classifier of a training ``VICERewardWrapper`` (for evaluation; stores nothing)."""
+
+    def __init__(self, env: gym.Env, vice: "VICERewardWrapper"):
+        super().__init__(env)
+        self.vice = vice
+
+    def step(self, action):
+        """Step; reward = the shared classifier's ``log p(success | s')``, original in ``info["original_reward"]``."""
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        info["original_reward"] = reward
+        x = images_of(self.env, obs, self.vice.config, self.vice.device)
+        return obs, self.vice.classifier.log_prob(x).to(reward.device), terminated, truncated, info
+
+
 class VICERewardWrapper(gym.Wrapper):
     """Replace a ManiSkill env's reward with VICE-RAQ's ``log p(success | s)``; see the module docstring."""
 
@@ -233,19 +214,7 @@ class VICERewardWrapper(gym.Wrapper):
 
     # ------------------------------------------------------------------ env side
     def _images(self, obs) -> torch.Tensor:
-        cams = self.config.cameras
-        data = obs.get("sensor_data", {}) if isinstance(obs, dict) else {}
-        if all("rgb" in data.get(uid, {}) for uid in cams):
-            images = {uid: data[uid]["rgb"] for uid in cams}
-        else:
-            # Obs modes without rgb: render the cameras once, like the DREM reward does.
-            u = self.env.unwrapped
-            u.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            images = {}
-            for uid in cams:
-                u._sensors[uid].capture()
-                images[uid] = u._sensors[uid].get_obs(rgb=True, depth=False, position=False, segmentation=False)["rgb"]
-        return preprocess(images, cams, self.config.image_size).to(self.device)
+        return images_of(self.env, obs, self.config, self.device)
 
     def add_visited(self, images: torch.Tensor, success: torch.Tensor) -> None:
         """Store preprocessed visited states ``[B, C, S, S]`` and their success flags in the ring buffer."""
@@ -266,7 +235,16 @@ class VICERewardWrapper(gym.Wrapper):
             new_reward = new_reward.to(reward.device)
         return obs, new_reward, terminated, truncated, info
 
+    def evaluation_env(self, env: gym.Env) -> gym.Env:
+        """``env`` rewarded by this wrapper's classifier, storing nothing (for evaluation episodes)."""
+        return SharedVICEReward(env, self)
+
     # ------------------------------------------------------------------ learning side
+    @property
+    def update_every(self) -> int:
+        """Env steps between classifier updates (``config.update_every``), for the trainer."""
+        return self.config.update_every
+
     @property
     def num_visited(self) -> int:
         """Visited states currently in the buffer."""

@@ -6,18 +6,28 @@ containers: a checkpoint from a stranger cannot run code. The header records wha
 needs to be used correctly: env id, modalities, camera uids, image size, F/T history length,
 render style, the model and training configs, the package version, and the expert's first
 and last embeddings ``h(s_0)`` and ``h(s_G)`` are among the weights.
+
+Shipped checkpoints live in ``rewards/<env_id>/`` (``drem.pt``, and ``drem_image.pt`` for the
+image-only model): beside the package in a checkout, under ``<prefix>/share/drem-maniskill`` in
+a wheel; ``default_checkpoint`` finds them.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import sys
 import tempfile
 from pathlib import Path
+from typing import Optional
 
 import torch
 
 FORMAT = "drem-maniskill-reward/1"
+
+# rewards/ sits beside the package in a checkout (editable install); a wheel installs it as
+# data files under <prefix>/share/drem-maniskill/rewards (pyproject's data-files).
+REWARDS_DIRS = (Path(__file__).resolve().parents[2] / "rewards", Path(sys.prefix) / "share" / "drem-maniskill" / "rewards")
 
 
 class CheckpointError(ValueError):
@@ -88,3 +98,25 @@ def check_compatible(header: dict, env_id: str, cameras: dict, ft_history: int |
             f"DREM checkpoint {path} does not fit this env: " + "; ".join(problems)
             + ". Use a checkpoint trained on this env (drem-maniskill train-reward) or make the env to match."
         )
+
+
+def default_checkpoint(env_id: str, image_only: bool = False) -> Path:
+    """Path of the shipped checkpoint for ``env_id`` (``rewards/<env_id>/drem.pt``, or ``drem_image.pt``)."""
+    name = "drem_image.pt" if image_only else "drem.pt"
+    for folder in REWARDS_DIRS:
+        if (folder / env_id / name).exists():
+            return folder / env_id / name
+    return REWARDS_DIRS[0] / env_id / name
+
+
+def resolve_checkpoint(env_id: str, path: Optional[str], image_only: bool = False) -> Path:
+    """The checkpoint to use: ``path`` if given, else the shipped default for ``env_id``."""
+    if path:
+        return Path(path)
+    default = default_checkpoint(env_id, image_only)
+    if not default.exists():
+        raise CheckpointError(
+            f"no DREM checkpoint ships for {env_id} (looked for {default}). Train one with "
+            f"`drem-maniskill train-reward` and pass gym.make({env_id!r}, reward_mode='drem', drem_checkpoint=PATH)"
+        )
+    return default

@@ -197,17 +197,6 @@ class DREMModel(nn.Module):
         return h, self.decode(h), inputs
 
 
-def reconstruction_loss(recon: dict, inputs: dict) -> torch.Tensor:
-    """Sigmoid cross-entropy per image pixel plus L2 on the F/T history (Section III-B.2)."""
-    loss = recon[next(iter(recon))].new_zeros(())
-    for key, pred in recon.items():
-        if key == "ft":
-            loss = loss + F.mse_loss(pred, inputs["ft"])
-        else:
-            loss = loss + F.binary_cross_entropy_with_logits(pred, inputs[key])
-    return loss
-
-
 def cosine_distance(h: torch.Tensor, h_goal: torch.Tensor) -> torch.Tensor:
     """``1 - <h_bar, h_bar_G>`` with L2-normalised vectors (the paper's latent distance)."""
     return 1.0 - (F.normalize(h, dim=-1) * F.normalize(h_goal, dim=-1)).sum(-1)

@@ -32,7 +32,7 @@ from mani_skill.agents.robots.panda.panda import Panda
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.structs import Articulation
 
-from drem_maniskill._cache import cached_text_file
+from drem_maniskill.utils.cache import cached_text_file
 
 FULL_URDF = Path(PACKAGE_ASSET_DIR) / "robots/panda/panda_v2.urdf"
 

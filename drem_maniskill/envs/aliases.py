@@ -4,7 +4,7 @@ ManiSkill's baselines (``ppo.py``, ``ppo_cpu.py``, ``sac.py``) and its benchmark
 ``gym.make(env_id, ...)`` without a reward mode, so they train on the env's default. These ids
 make that default DREM:
 
-* ``PegInHole-DREM-v1``, ``USBInsertion-DREM-v1``: our tasks with ``reward_mode="drem"`` by
+* ``PegInHole-DREM-v1``, ``USBInsertion-DREM-v1`` (one per task of ``envs.TASKS``): our tasks with ``reward_mode="drem"`` by
   default and the shipped checkpoint (``drem_checkpoint=`` picks another); every other reward
   mode stays available;
 * ``register_drem_env("PegInsertionSide-v1", "ckpt.pt")`` registers ``PegInsertionSide-DREM-v1``:
@@ -20,9 +20,9 @@ device, ``_sensors``): a gymnasium wrapper under those would be skipped by ``.un
 would change the order of wrappers the scripts expect. A subclass keeps the env a plain
 ManiSkill env whose ``get_reward`` gives DREM, so the batched reward tensor, ``info["success"]``
 (the task's own ``evaluate``), the GPU sim and the time limit behave as on the base task. The
-reward itself is computed by ``DREMRewardWrapper.reward`` around the env, so the checkpoint's
-camera map and checks are the wrapper's. The aliases' ``env_id`` stays the base task's, so
-checkpoints trained on the base task fit.
+``drem`` mode is ``drem_maniskill.drem.mode.DREMRewardMode``, the same mixin our tasks use,
+so the checkpoint's checks and inputs are the same on every route. The aliases' ``env_id`` stays
+the base task's, so checkpoints trained on the base task fit.
 """
 
 from __future__ import annotations
@@ -32,39 +32,43 @@ from typing import Optional
 
 from mani_skill.utils.registration import REGISTERED_ENVS, register_env
 
-from drem_maniskill.envs.peg_in_hole import PegInHoleEnv
-from drem_maniskill.envs.usb_insertion import USBInsertionEnv
-
-# Naming: ManiSkill ids are <Task>-v<N>; the reward goes into the task part, the version stays.
-DREM_ALIASES = {"PegInHole-DREM-v1": "PegInHole-v1", "USBInsertion-DREM-v1": "USBInsertion-v1"}
+from drem_maniskill.drem.checkpoint import load_checkpoint
+from drem_maniskill.drem.mode import DREMRewardMode
 
 
 def drem_env_id(base_env_id: str) -> str:
     """The DREM-by-default id of ``base_env_id``: ``-DREM`` before its last ``-vN`` suffix."""
+    # Naming: ManiSkill ids are <Task>-v<N>; the reward goes into the task part, the version stays.
     name, sep, version = base_env_id.rpartition("-v")
     return f"{name}-DREM-v{version}" if sep and version.isdigit() else f"{base_env_id}-DREM"
 
 
-def _drem_default(base_cls, alias: str):
+def _drem_default(base_cls, alias: str, default_checkpoint: Optional[str] = None):
+    """``base_cls`` with ``reward_mode="drem"`` by default (and ``drem_checkpoint=default_checkpoint``)."""
+
     class DREMDefault(base_cls):
         __doc__ = f"{base_cls.__name__} with reward_mode='drem' by default ({alias})."
 
-        def __init__(self, *args, reward_mode: Optional[str] = "drem", **kwargs):
-            super().__init__(*args, reward_mode=reward_mode, **kwargs)
+        def __init__(self, *args, reward_mode: Optional[str] = "drem", drem_checkpoint: Optional[str] = default_checkpoint, **kwargs):
+            super().__init__(*args, reward_mode=reward_mode, drem_checkpoint=drem_checkpoint, **kwargs)
 
     DREMDefault.__name__ = DREMDefault.__qualname__ = f"{base_cls.__name__}DREM"
     return DREMDefault
 
 
-for _alias, _base, _cls in (("PegInHole-DREM-v1", "PegInHole-v1", PegInHoleEnv),
-                            ("USBInsertion-DREM-v1", "USBInsertion-v1", USBInsertionEnv)):
-    register_env(_alias, max_episode_steps=REGISTERED_ENVS[_base].max_episode_steps)(_drem_default(_cls, _alias))
+def register_task_aliases(tasks) -> dict:
+    """Register ``<Task>-DREM-v<N>`` for each of our ``tasks``; returns alias -> task."""
+    aliases = {}
+    for task in tasks:
+        spec = REGISTERED_ENVS[task]
+        alias = drem_env_id(task)
+        register_env(alias, max_episode_steps=spec.max_episode_steps)(_drem_default(spec.cls, alias))
+        aliases[alias] = task
+    return aliases
 
 
 def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[str] = None, **kwargs) -> str:
     """Register a stock ManiSkill task with DREM from ``checkpoint`` as its default reward; returns the new id."""
-    from drem_maniskill.drem.checkpoint import load_checkpoint
-
     if base_env_id not in REGISTERED_ENVS:
         raise ValueError(f"{base_env_id!r} is not a registered ManiSkill env id")
     header, _ = load_checkpoint(checkpoint)  # fails clearly on a missing or corrupt file, now
@@ -73,33 +77,21 @@ def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[st
     spec = REGISTERED_ENVS[base_env_id]
     base = spec.cls
     new_env_id = new_env_id or drem_env_id(base_env_id)
-    # Absolute: a script may chdir, and worker processes may start elsewhere.
-    default_checkpoint = str(Path(checkpoint).resolve())
+    if issubclass(base, DREMRewardMode):
+        cls = _drem_default(base, new_env_id, str(Path(checkpoint).resolve()))
+    else:
 
-    class StockDREM(base):
-        SUPPORTED_REWARD_MODES = tuple(base.SUPPORTED_REWARD_MODES) + ("drem",)
-        env_id = base_env_id  # what the checkpoint's header must name
+        class StockDREM(DREMRewardMode, base):
+            SUPPORTED_REWARD_MODES = tuple(base.SUPPORTED_REWARD_MODES) + ("drem",)
+            env_id = base_env_id  # what the checkpoint's header must name
 
-        def __init__(self, *args, reward_mode: Optional[str] = "drem", drem_checkpoint: str = default_checkpoint, **kw):
-            self.drem_checkpoint = drem_checkpoint
-            self._drem = None
-            super().__init__(*args, reward_mode=reward_mode, **kw)
-            if self.reward_mode == "drem":
-                from drem_maniskill.drem.wrapper import DREMRewardWrapper
-
-                # Built now so a checkpoint that does not fit (cameras, env) fails at gym.make.
-                self._drem = DREMRewardWrapper(self, self.drem_checkpoint)
-
-        def get_reward(self, obs, action, info):
-            """DREM ``R(s)`` when ``reward_mode="drem"``, else the task's own reward."""
-            if self.reward_mode != "drem":
-                return super().get_reward(obs, action, info)
-            return self._drem.reward(obs).to(self.device)
-
-    StockDREM.__name__ = StockDREM.__qualname__ = f"{base.__name__}DREM"
-    StockDREM.__doc__ = f"{base.__name__} with a 'drem' reward mode, the default, from {default_checkpoint}."
+        StockDREM.__name__ = StockDREM.__qualname__ = f"{base.__name__}WithDREM"
+        # Absolute: a script may chdir, and worker processes may start elsewhere.
+        cls = _drem_default(StockDREM, new_env_id, str(Path(checkpoint).resolve()))
+        cls.__name__ = cls.__qualname__ = f"{base.__name__}DREM"
+    cls.__doc__ = f"{base.__name__} with a 'drem' reward mode, the default, from {Path(checkpoint).resolve()}."
     # Registering the same id again (another checkpoint) replaces the old one. The base spec's
     # default kwargs come first so the alias makes the same env as the base id.
     register_env(new_env_id, max_episode_steps=spec.max_episode_steps, override=True,
-                 asset_download_ids=list(spec.asset_download_ids or []), **{**spec.default_kwargs, **kwargs})(StockDREM)
+                 asset_download_ids=list(spec.asset_download_ids or []), **{**spec.default_kwargs, **kwargs})(cls)
     return new_env_id

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import sapien
 
-from drem_maniskill._cache import cached_text_file
+from drem_maniskill.utils.cache import cached_text_file
 
 
 def z_rotation(angle: float) -> list[float]:

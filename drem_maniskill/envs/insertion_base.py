@@ -33,8 +33,11 @@ from mani_skill.utils.geometry.rotation_conversions import (
 from mani_skill.utils.structs import Actor, Pose
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
+from drem_maniskill.baselines.engineered import engineered_reward, pose_distance
+from drem_maniskill.drem.mode import DREMRewardMode
 from drem_maniskill.envs.agent import FULL_URDF, HeldPart, PandaInsertion
 from drem_maniskill.envs.ft_sensor import WristFTSensor
+from drem_maniskill.utils.state import unflatten_like
 
 RENDER_STYLES = ("lean", "full")
 # Group-2 collision bit on every robot link, held part included: no contact forces between
@@ -54,13 +57,14 @@ def _yaw_quat(yaw: torch.Tensor) -> torch.Tensor:
     return axis_angle_to_quaternion(axis)
 
 
-class InsertionEnv(BaseEnv):
+class InsertionEnv(DREMRewardMode, BaseEnv):
     """Base class: a held part, a socket, two cameras and a wrist F/T sensor."""
 
     SUPPORTED_ROBOTS = ["panda_insertion"]
     agent: PandaInsertion
 
-    # One place to add a reward mode: name -> method computing a [num_envs] tensor.
+    # One place to add a reward mode: name -> method computing a [num_envs] tensor ("drem" is
+    # DREMRewardMode's, which also loads the checkpoint).
     REWARD_FUNCTIONS = {
         "sparse": "compute_sparse_reward",
         "dense": "compute_dense_reward",
@@ -105,28 +109,18 @@ class InsertionEnv(BaseEnv):
         render_style: str = "lean",
         ft_history: int = 8,
         reconfiguration_freq: Optional[int] = None,
-        reward_mode: Optional[str] = None,
-        drem_checkpoint: Optional[str] = None,
         engineered_kappa: float = 10.0,
         **kwargs,
     ):
         self.clearance = self._check_clearance(self.default_clearance if clearance is None else clearance)
         if render_style not in RENDER_STYLES:
             raise ValueError(f"render_style must be one of {RENDER_STYLES}, got {render_style!r}")
-        if reward_mode is not None and reward_mode not in self.SUPPORTED_REWARD_MODES:
-            raise ValueError(
-                f"Unknown reward_mode {reward_mode!r} for {type(self).__name__}. "
-                f"Choose one of {list(self.SUPPORTED_REWARD_MODES)}, "
-                f"e.g. gym.make(..., reward_mode='dense')."
-            )
         if int(ft_history) < 1:
             raise ValueError(f"ft_history must be a positive number of readings, got {ft_history}")
         self.randomize_colors = bool(randomize_colors)
         self.render_style = render_style
         self.ft_history = int(ft_history)
-        self.drem_checkpoint = drem_checkpoint
         self.engineered_kappa = float(engineered_kappa)  # 1/m, for reward_mode="engineered"
-        self._drem = None
         # Rebuilding the scene costs 160-300 ms on this CPU; colours and poses change without it.
         if reconfiguration_freq is None:
             reconfiguration_freq = 0
@@ -135,15 +129,8 @@ class InsertionEnv(BaseEnv):
             robot_uids=robot_uids,
             control_mode=control_mode,
             reconfiguration_freq=reconfiguration_freq,
-            reward_mode=reward_mode,
             **kwargs,
         )
-        if self.reward_mode == "drem":
-            # Fail at construction, not at the first step, when the checkpoint does not fit.
-            from drem_maniskill.drem.reward import DREMReward, resolve_checkpoint
-
-            path = resolve_checkpoint(self.env_id, drem_checkpoint)
-            self._drem = DREMReward.from_checkpoint(str(path), env=self)
 
     def _check_clearance(self, clearance) -> float:
         try:
@@ -354,7 +341,7 @@ class InsertionEnv(BaseEnv):
         state = torch.as_tensor(state, device=self.device)
         if state.ndim == 1:
             state = state[None]
-        self.set_state_dict(_unflatten_like(template, state), env_idx)
+        self.set_state_dict(unflatten_like(template, state), env_idx)
 
     # ------------------------------------------------------------------ task
     def tip_pose_in_socket(self) -> Pose:
@@ -406,28 +393,8 @@ class InsertionEnv(BaseEnv):
     def _zero_reward(self, obs: Any, action: torch.Tensor, info: dict):
         return torch.zeros(self.num_envs, device=self.device)
 
-    def compute_drem_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        """DREM task progress ``R(s)`` from the cameras and the F/T history (Eq. 2)."""
-        pairs = self._drem.camera_pairs  # the checkpoint's own modality -> camera uid map
-        sensor_data = obs.get("sensor_data", {}) if isinstance(obs, dict) else {}
-        try:
-            batch = {key: sensor_data[uid]["rgb"] for key, uid in pairs}  # the obs already has them (views, uncopied)
-        except KeyError:
-            # Obs modes without rgb (state, none, depth-only): render the cameras once here.
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            for _, uid in pairs:
-                self._sensors[uid].capture()
-            batch = {
-                key: self._sensors[uid].get_obs(rgb=True, depth=False, position=False, segmentation=False)["rgb"]
-                for key, uid in pairs
-            }
-        batch["ft"] = self.ft.buffer
-        return self._drem(batch)
-
     def compute_engineered_reward(self, obs: Any, action: torch.Tensor, info: dict):
         """The paper's hand-crafted ``-exp(kappa d)``, d the tip's pose distance to the fully-inserted pose."""
-        from drem_maniskill.baselines.engineered import engineered_reward, pose_distance
-
         # Goal in the socket frame: on the axis at the bottom of the hole, axes aligned.
         goal = torch.tensor([[0.0, 0.0, -self.hole_depth]], device=self.device)
         rot_error = torch.sqrt(info["tilt_error"] ** 2 + info["yaw_error"] ** 2)
@@ -455,29 +422,3 @@ class InsertionEnv(BaseEnv):
         """``dense`` scaled to [0, 1]."""
         return self.compute_dense_reward(obs=obs, action=action, info=info) / 6.0
 
-
-def _unflatten_like(template: dict, flat: torch.Tensor) -> dict:
-    """Split a flat state ``[B, D]`` into a dict shaped like ``template`` (ManiSkill's key order)."""
-    out, start = {}, 0
-
-    def walk(t: dict, o: dict):
-        nonlocal start
-        for key, value in t.items():
-            if isinstance(value, dict):
-                o[key] = {}
-                walk(value, o[key])
-                continue
-            value = torch.as_tensor(value)
-            width = 1 if value.ndim == 1 else value.shape[-1]
-            o[key] = flat[:, start : start + width]
-            if value.ndim == 1:
-                o[key] = o[key][:, 0]
-            start += width
-
-    walk(template, out)
-    if start != flat.shape[1]:
-        raise ValueError(
-            f"flat state has {flat.shape[1]} values but this env's state has {start}; "
-            "it was made by another task or configuration. Prefer env.get_state_dict()."
-        )
-    return out

@@ -8,16 +8,21 @@ import sys
 
 
 def _cmd_train_policy(args) -> None:
+    from drem_maniskill.envs import check_env_id
+    from drem_maniskill.rl.algos import algo_spec
     from drem_maniskill.rl.config import RLConfig
-    from drem_maniskill.rl.envs import reward_spec
-    from drem_maniskill.rl.train import train_policy
+    from drem_maniskill.rl.rewards import reward_spec
+    from drem_maniskill.rl.train_policy import train_policy
 
-    reward_spec(args.reward)  # the clear error before anything heavy loads
+    # The clear errors before anything heavy loads.
+    check_env_id(args.task)
+    reward_spec(args.reward)
+    algo_spec(args.algo)
     overrides = {k: v for k, v in dict(steps=args.steps, out=args.out, eval_every=args.eval_every,
                                        eval_episodes=args.eval_episodes, threads=args.threads, num_envs=args.num_envs,
                                        sim_backend=args.sim_backend, learning_starts=args.learning_starts,
                                        batch_size=args.batch_size, device=args.device).items() if v is not None}
-    config = RLConfig.preset(args.preset, task=args.task, reward=args.reward, seed=args.seed, **overrides)
+    config = RLConfig.preset(args.preset, task=args.task, reward=args.reward, algo=args.algo, seed=args.seed, **overrides)
     print(f"policy config: {json.dumps(config.to_dict())}")
     result = train_policy(config)
     print(json.dumps(result, indent=2))
@@ -34,12 +39,13 @@ def _cmd_compare(args) -> None:
 def add_subcommands(sub) -> None:
     """Add ``train-policy`` and ``compare`` to an argparse subparsers object (here and in ``drem-maniskill``)."""
     from drem_maniskill.rl.config import PRESETS
-    from drem_maniskill.rl.envs import REWARDS
+    from drem_maniskill.rl.rewards import REWARDS
 
     p = sub.add_parser("train-policy", help="SAC on a task with a reward chosen by name; rerun to resume")
     p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
     # No argparse choices: reward_spec's error lists them and says what was asked for.
     p.add_argument("--reward", default="drem", help=f"one of {', '.join(REWARDS)} (default: %(default)s)")
+    p.add_argument("--algo", default="sac", help="RL algorithm, a name of rl.algos.ALGOS (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default: %(default)s)")
     p.add_argument("--steps", type=int, help="env steps (default: the preset's; light 20000, paper 150000)")
     p.add_argument("--preset", default="light", choices=list(PRESETS), help="light: this CPU; paper: the paper's obs, GPU")
@@ -73,10 +79,11 @@ def main(argv=None) -> int:
     try:
         args.func(args)
     except ValueError as err:
-        if "unknown reward" in str(err):
-            print(f"error: {err}", file=sys.stderr)
-            return 2
-        raise
+        # Bad names (task, reward, algorithm): the message lists the choices.
+        if not str(err).startswith(("unknown reward", "unknown task", "unknown algorithm")):
+            raise
+        print(f"python -m drem_maniskill.rl {args.command}: error: {err}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -9,7 +9,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from drem_maniskill.rl.train import read_eval_csv
+from drem_maniskill.rl.train_policy import read_eval_csv
 
 
 def steps_to_reach(steps: Sequence[float], values: Sequence[float], level: float = 0.5) -> Optional[float]:

@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
+from drem_maniskill.envs import is_insertion_task
+
 PRESETS = ("light", "paper")
 
 
@@ -16,7 +18,8 @@ class RLConfig:
     """Everything a run needs; ``RLConfig.preset(name, **overrides)`` is the usual way to make one."""
 
     task: str = "PegInHole-v1"
-    reward: str = "drem"
+    reward: str = "drem"  # a name of rl.rewards.REWARDS
+    algo: str = "sac"  # a name of rl.algos.ALGOS
     seed: int = 0
     steps: int = 20_000  # environment steps (all envs together)
     preset: str = "light"
@@ -58,9 +61,9 @@ class RLConfig:
     eval_seed: int = 10_000
     eval_episodes: int = 10
 
-    # --- VICE-RAQ (reward "vice" only)
-    vice: dict = field(default_factory=dict)  # VICEConfig overrides
-    vice_goal_seeds: int = 10  # expert episodes (seeds 0..n-1) whose successful images are the goals
+    # --- options of the reward, passed to its spec's learner (vice: VICEConfig overrides, and
+    # goal_seeds: expert episodes, seeds 0..n-1, whose successful images are the goals; default 10)
+    reward_kwargs: dict = field(default_factory=dict)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "RLConfig":
@@ -75,6 +78,7 @@ class RLConfig:
                 image_size=128, policy_ft=None, policy_state=False, cnn_channels=(16, 32, 32, 64, 64, 64),
                 steps=150_000, buffer_size=50_000, batch_size=256, learning_starts=5_000, eval_every=5_000,
             )
+        overrides = _legacy(overrides)
         unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise TypeError(f"unknown RLConfig fields {sorted(unknown)}")
@@ -92,8 +96,6 @@ class RLConfig:
 
         Never on ManiSkill's own tasks: they have no F/T sensor.
         """
-        from drem_maniskill.envs import is_insertion_task
-
         if not is_insertion_task(self.task):
             return False
         return self.reward == "drem" if self.policy_ft is None else bool(self.policy_ft)
@@ -110,7 +112,7 @@ class RLConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "RLConfig":
         """Inverse of ``to_dict`` (unknown keys are an error, so a stale config is not half-read)."""
-        return cls(**d)
+        return cls(**_legacy(d))
 
     def save(self, path) -> None:
         """Write the config as JSON."""
@@ -120,3 +122,16 @@ class RLConfig:
     def load(cls, path) -> "RLConfig":
         """Read a config written by ``save``."""
         return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+def _legacy(d: dict) -> dict:
+    """Run configs written before 0.1's re-layering: ``vice`` and ``vice_goal_seeds`` became ``reward_kwargs``."""
+    d = dict(d)
+    if "vice" in d or "vice_goal_seeds" in d:
+        options = dict(d.pop("vice", {}) or {})
+        if "vice_goal_seeds" in d:
+            seeds = d.pop("vice_goal_seeds")
+            if seeds != 10:
+                options["goal_seeds"] = seeds
+        d["reward_kwargs"] = {**options, **d.get("reward_kwargs", {})}
+    return d

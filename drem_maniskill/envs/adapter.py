@@ -1,15 +1,15 @@
 """How the DREM pipeline reads an env: cameras, F/T, end-effector state, start region, states.
 
-The sampler, the recorder and the reward only talk to an env through ``EnvAdapter``, so the
-same pipeline runs on our insertion tasks and on any ManiSkill task (``PegInsertionSide-v1``,
-``PlugCharger-v1``, a user's own). ``adapter_for(env)`` picks:
+The backward sampler talks to an env only through ``EnvAdapter``, so the same pipeline runs on
+our insertion tasks and on any ManiSkill task (``PegInsertionSide-v1``, ``PlugCharger-v1``, a
+user's own). ``adapter_for(env)`` picks:
 
 * **our tasks** (``InsertionEnv``): cameras ``fixed_camera`` / ``wrist_camera``, the wrist F/T
   history, the task's ``in_start_region()``, and states that already replay a step;
-* **any other ManiSkill env**: the first non-wrist camera as ``fixed`` (``base_camera`` in
-  ManiSkill's tabletop tasks) and ``hand_camera`` as ``wrist`` when the robot has one
-  (``panda_wristcam``), images only (no F/T sensor), and as start region "the end-effector
-  within ``radius`` of the expert's first pose, gripper opening within 2 cm of the expert's".
+* **any other ManiSkill env**: its cameras in the roles of ``utils.cameras.camera_roles``
+  (``base_camera`` as ``fixed``, ``hand_camera`` as ``wrist`` in ManiSkill's tabletop tasks),
+  images only (no F/T sensor), and as start region "the end-effector within ``radius`` of the
+  expert's first pose, gripper opening within 2 cm of the expert's".
 
 States: ManiSkill's ``set_state_dict`` restores bodies and joints but not the joint drive
 targets that the PD controllers hold, so a restored state does not replay the next step.
@@ -25,34 +25,23 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-OUR_CAMERAS = {"fixed": "fixed_camera", "wrist": "wrist_camera"}
-WRIST_CAMERA_UIDS = ("hand_camera", "wrist_camera")
+from drem_maniskill.envs.insertion_base import InsertionEnv
+from drem_maniskill.utils.cameras import camera_images, camera_roles, env_cameras
+from drem_maniskill.utils.state import flatten_state, unflatten_like
+
 DRIVE_KEY = "drem_drive_targets"
 
 
-def _is_insertion_env(env) -> bool:
-    from drem_maniskill.envs.insertion_base import InsertionEnv
-
-    return isinstance(env, InsertionEnv)
-
-
 def camera_map_for(env) -> dict:
-    """Modality -> camera uid of ``env`` (``fixed`` always, ``wrist`` when it has a wrist camera)."""
-    env = env.unwrapped
-    if _is_insertion_env(env):
-        return dict(OUR_CAMERAS)
-    uids = [uid for uid, s in env._sensors.items() if hasattr(s, "camera")]
-    if not uids:
+    """Role -> camera uid of ``env`` (``fixed`` always, ``wrist`` when it has a wrist camera)."""
+    roles = camera_roles(env_cameras(env))
+    if not roles:
+        u = env.unwrapped
         raise ValueError(
-            f"{env.spec.id if env.spec else type(env).__name__} has no camera; DREM needs at least one RGB camera "
+            f"{u.spec.id if u.spec else type(u).__name__} has no camera; DREM needs at least one RGB camera "
             "(pass sensor_configs or a robot with a camera)"
         )
-    wrist = [u for u in uids if u in WRIST_CAMERA_UIDS]
-    fixed = [u for u in uids if u not in WRIST_CAMERA_UIDS]
-    out = {"fixed": fixed[0] if fixed else uids[0]}
-    if wrist and wrist[0] != out["fixed"]:
-        out["wrist"] = wrist[0]
-    return out
+    return roles
 
 
 def _gripper_joint_indices(env) -> list:
@@ -77,16 +66,8 @@ class EnvAdapter:
 
     def images(self, obs) -> dict:
         """``{modality: [B, H, W, 3] uint8}`` from an observation, or rendered once if it has none."""
-        data = obs.get("sensor_data", {}) if isinstance(obs, dict) else {}
-        if all("rgb" in data.get(uid, {}) for uid in self.camera_map.values()):
-            return {m: data[uid]["rgb"] for m, uid in self.camera_map.items()}
-        u = self.env
-        u.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-        out = {}
-        for m, uid in self.camera_map.items():
-            u._sensors[uid].capture()
-            out[m] = u._sensors[uid].get_obs(rgb=True, depth=False, position=False, segmentation=False)["rgb"]
-        return out
+        images = camera_images(self.env, obs, self.camera_map.values())
+        return {m: images[uid] for m, uid in self.camera_map.items()}
 
     def ft(self) -> Optional[torch.Tensor]:
         """Wrist F/T history ``[B, H, 6]``, or None without our sensor."""
@@ -120,7 +101,7 @@ class EnvAdapter:
     def get_state(self) -> dict:
         """A state dict that replays the next step when restored (drive targets included)."""
         state = self.env.get_state_dict()
-        if not _is_insertion_env(self.env):
+        if not isinstance(self.env, InsertionEnv):
             state[DRIVE_KEY] = self.env.agent.robot.get_drive_targets().clone()
         return state
 
@@ -129,7 +110,7 @@ class EnvAdapter:
         state = dict(state)
         targets = state.pop(DRIVE_KEY, None)
         self.env.set_state_dict(state)
-        if "controller" in state and not _is_insertion_env(self.env):
+        if "controller" in state and not isinstance(self.env, InsertionEnv):
             self.env.agent.set_controller_state(state["controller"])
         if targets is not None:
             robot = self.env.agent.robot
@@ -137,22 +118,18 @@ class EnvAdapter:
 
     def unflatten(self, flat) -> dict:
         """A flat state ``[B, D]`` (from ``flatten``) back to a dict shaped like ``get_state()``."""
-        from drem_maniskill.envs.insertion_base import _unflatten_like
-
         flat = torch.as_tensor(flat)
-        return _unflatten_like(self.get_state(), flat[None] if flat.ndim == 1 else flat)
+        return unflatten_like(self.get_state(), flat[None] if flat.ndim == 1 else flat)
 
     @staticmethod
     def flatten(state: dict) -> torch.Tensor:
         """Flat ``[B, D]`` form of a state dict, in ManiSkill's key order."""
-        from mani_skill.utils import common
-
-        return common.flatten_state_dict(state, use_torch=True)
+        return flatten_state(state)
 
 
 def adapter_for(env) -> EnvAdapter:
     """The adapter of a ManiSkill env (wrapped or not)."""
     u = env.unwrapped
-    if _is_insertion_env(u):
-        return EnvAdapter(u, dict(OUR_CAMERAS), has_ft=True, start_fn=lambda e: e.in_start_region())
+    if isinstance(u, InsertionEnv):
+        return EnvAdapter(u, camera_map_for(u), has_ft=True, start_fn=lambda e: e.in_start_region())
     return EnvAdapter(u, camera_map_for(u), has_ft=hasattr(u, "ft"), gripper_idx=_gripper_joint_indices(u))

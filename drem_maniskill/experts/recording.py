@@ -18,7 +18,10 @@ from tqdm import tqdm
 
 from mani_skill.utils.wrappers.record import RecordEpisode
 
-from drem_maniskill.scripted import ee_control_kwargs, episode_horizon, get_policy
+from drem_maniskill.experts.control import ee_control_kwargs
+from drem_maniskill.experts.policies import get_policy
+from drem_maniskill.experts.rollout import rollout
+from drem_maniskill.utils.episodes import episode_horizon
 
 
 @dataclass
@@ -63,17 +66,13 @@ def record_expert(
     result = RecordResult(h5_path=str(out / f"{name}.h5"), json_path=str(out / f"{name}.json"))
     try:
         for seed in tqdm(list(seeds), desc=f"record {getattr(policy, '__name__', policy)} on {env_id}", unit="episode", disable=None):
-            obs, _ = env.reset(seed=int(seed))
-            for t in range(horizon):
-                obs, _, terminated, truncated, info = env.step(pi(obs))
-                if bool(terminated.any()) or bool(truncated.any()):
-                    break
+            ep = rollout(env, pi, int(seed), horizon)
             env.flush_trajectory()
             if save_video:
                 env.flush_video()
             result.seeds.append(int(seed))
-            result.success.append(bool(info["success"].any()))
-            result.lengths.append(t + 1)
+            result.success.append(bool(ep.info["success"].any()))
+            result.lengths.append(ep.length)
     finally:
         env.close()
     summary = {k: v for k, v in asdict(result).items()}

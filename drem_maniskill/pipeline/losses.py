@@ -16,6 +16,7 @@ The total loss is ``L_triplet + alpha L_reconstruction`` with the paper's ``eps 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 
 def triplet_loss(
@@ -34,3 +35,14 @@ def triplet_loss(
     far = torch.clamp(beta1 * dt - gap, min=0.0)
     near = torch.clamp(-gap, min=0.0) + torch.clamp(gap - beta2, min=0.0)
     return torch.where(dt > eps, far, near)
+
+
+def reconstruction_loss(recon: dict, inputs: dict) -> torch.Tensor:
+    """Sigmoid cross-entropy per image pixel plus L2 on the F/T history (Section III-B.2)."""
+    loss = recon[next(iter(recon))].new_zeros(())
+    for key, pred in recon.items():
+        if key == "ft":
+            loss = loss + F.mse_loss(pred, inputs["ft"])
+        else:
+            loss = loss + F.binary_cross_entropy_with_logits(pred, inputs[key])
+    return loss

@@ -22,7 +22,7 @@ Targets are recomputed every step from the measured poses (the part's target pos
 measured part-to-TCP transform), so slip in the grasp is corrected on the way.
 
 DREM's sampler does not use a start region from here: on a stock task it is the demo's first
-TCP position (``drem_maniskill.drem.adapter``), so any demo works the same way.
+TCP position (``drem_maniskill.envs.adapter``), so any demo works the same way.
 """
 
 from __future__ import annotations
@@ -32,11 +32,14 @@ import torch
 
 from mani_skill.utils.geometry.rotation_conversions import (
     axis_angle_to_quaternion,
+    matrix_to_quaternion,
     quaternion_invert,
     quaternion_multiply,
     quaternion_to_axis_angle,
 )
 from mani_skill.utils.structs import Pose
+
+from drem_maniskill.experts.control import require_ee_control
 
 POS_SCALE = 0.1  # m per unit action (pos_lower/upper of the stock pd_ee_delta_pose)
 ROT_SCALE = -0.1  # rad per unit action: rot_lower, negative in ManiSkill 3.0.1
@@ -70,8 +73,6 @@ class _StockExpert:
     i_zone = float("inf")  # m; the integral only accumulates while the position error is below this
 
     def __init__(self, env, seed: int = 0, action_noise: float = 0.0):
-        from drem_maniskill.scripted import require_ee_control
-
         self.env = env.unwrapped
         require_ee_control(env, "stock experts")
         self.device = self.env.device
@@ -181,8 +182,6 @@ def _top_down_grasp_q(closing: torch.Tensor) -> torch.Tensor:
     approaching[:, 2] = -1
     ortho = torch.cross(closing, approaching, dim=1)
     rot = torch.stack([ortho, closing, approaching], dim=2)
-    from mani_skill.utils.geometry.rotation_conversions import matrix_to_quaternion
-
     return matrix_to_quaternion(rot)
 
 
@@ -360,6 +359,7 @@ STOCK_EXPERTS: dict[str, type[_StockExpert]] = {
     "PlugCharger-v1": PlugChargerExpert,
 }
 
+
 def _env_id(env) -> str:
     spec = getattr(env.unwrapped, "spec", None)
     return spec.id if spec is not None else type(env.unwrapped).__name__
@@ -371,15 +371,3 @@ def get_stock_expert(env, seed: int = 0, **kwargs) -> _StockExpert:
     if env_id not in STOCK_EXPERTS:
         raise ValueError(f"no stock scripted expert for {env_id!r}; supported: {sorted(STOCK_EXPERTS)}")
     return STOCK_EXPERTS[env_id](env, seed=seed, **kwargs)
-
-
-if __name__ == "__main__":  # python -m drem_maniskill.stock_experts [ENV_ID] [N_SEEDS] [HORIZON]
-    import sys
-
-    from drem_maniskill.scripted import success_rate
-
-    ids = [sys.argv[1]] if len(sys.argv) > 1 else list(STOCK_EXPERTS)
-    n_seeds = int(sys.argv[2]) if len(sys.argv) > 2 else 50
-    horizon = {"max_episode_steps": int(sys.argv[3])} if len(sys.argv) > 3 else None
-    for env_id in ids:
-        print(success_rate(env_id, "expert", range(n_seeds), env_kwargs=horizon))

@@ -15,12 +15,15 @@ import os
 from pathlib import Path
 from typing import Sequence
 
+import gymnasium as gym
 import numpy as np
-import torch
 from scipy.stats import spearmanr
 from tqdm import tqdm
 
-from drem_maniskill.scripted import episode_horizon, get_policy
+from drem_maniskill.drem.wrapper import DREMRewardWrapper
+from drem_maniskill.envs import is_insertion_task
+from drem_maniskill.experts import ee_control_kwargs, get_policy, rollout
+from drem_maniskill.experts.stock import STOCK_EXPERTS
 
 EXAMINATION = ("direct_success", "align_success", "search_fail", "random")
 STOCK_EXAMINATION = ("direct_success", "noisy_expert", "random")
@@ -35,30 +38,27 @@ def auroc(scores_pos: Sequence[float], scores_neg: Sequence[float]) -> float:
     return float(greater / (len(pos) * len(neg)))
 
 
-def rollout(env, policy_name: str, seed: int, steps: int | None = None, stop_on_success: bool = True) -> dict:
-    """One episode: per-step reward, success, normalized_dense, insertion depth and wrist force."""
-    policy = get_policy(policy_name, env, seed=seed)
-    obs, _ = env.reset(seed=seed)
+def _measure(env, obs, action, info) -> dict:
+    """Per step beside the reward: the task's normalized_dense, insertion depth and wrist force where it has them."""
     u = env.unwrapped
-    rewards, force, dense, depth, success = [], [], [], [], False
-    for _ in range(steps or episode_horizon(env)):
-        action = policy(obs)
-        obs, reward, terminated, truncated, info = env.step(action)
-        rewards.append(float(reward[0]))
-        # The task's own shaped reward, for the correlation with DREM (every ManiSkill task with
-        # a dense reward has it; PlugCharger-v1 does not).
-        try:
-            dense.append(float(u.compute_normalized_dense_reward(obs=obs, action=action, info=info)[0]))
-        except NotImplementedError:
-            pass
-        if "insertion_depth" in info:
-            depth.append(float(info["insertion_depth"][0]))
-        if hasattr(u, "ft"):
-            force.append(float(u.ft.buffer[0, -1, 2].abs()))
-        success = success or bool(info["success"][0])
-        if (stop_on_success and success) or bool(truncated.any()):
-            break
-    return dict(rewards=rewards, force=force, success=success, normalized_dense=dense, insertion_depth=depth)
+    out = {}
+    # The task's own shaped reward, for the correlation with DREM (every ManiSkill task with a
+    # dense reward has it; PlugCharger-v1 does not).
+    try:
+        out["normalized_dense"] = float(u.compute_normalized_dense_reward(obs=obs, action=action, info=info)[0])
+    except NotImplementedError:
+        pass
+    if "insertion_depth" in info:
+        out["insertion_depth"] = float(info["insertion_depth"][0])
+    if hasattr(u, "ft"):
+        out["force"] = float(u.ft.buffer[0, -1, 2].abs())
+    return out
+
+
+def examination_episode(env, policy_name: str, seed: int, stop_on_success: bool = True) -> dict:
+    """One episode: per-step reward, success, normalized_dense, insertion depth and wrist force."""
+    ep = rollout(env, get_policy(policy_name, env, seed=seed), seed, stop_on_success=stop_on_success, measure=_measure)
+    return dict(rewards=ep.rewards, success=ep.success, **{k: ep.measures.get(k, []) for k in ("force", "normalized_dense", "insertion_depth")})
 
 
 def _pooled_spearman(episodes: list, key: str) -> float | None:
@@ -74,15 +74,8 @@ def _pooled_spearman(episodes: list, key: str) -> float | None:
 
 def _make_env(env_id: str, checkpoint: str, env_kwargs: dict | None):
     """Our task with ``reward_mode="drem"``, or a stock task wrapped by ``DREMRewardWrapper``."""
-    import gymnasium as gym
-
-    from drem_maniskill.envs import is_insertion_task
-    from drem_maniskill.scripted import ee_control_kwargs
-
     if is_insertion_task(env_id):
         return gym.make(env_id, obs_mode="state_dict", reward_mode="drem", drem_checkpoint=str(checkpoint), **(env_kwargs or {}))
-    from drem_maniskill.drem.wrapper import DREMRewardWrapper
-
     return DREMRewardWrapper(gym.make(env_id, obs_mode="state_dict", **ee_control_kwargs(env_id, env_kwargs)), checkpoint)
 
 
@@ -102,16 +95,13 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
     On ManiSkill's own tasks the examination policies are ``STOCK_EXAMINATION`` (direct_success
     is the stock expert there). The value-order correlation is over the expert's successful episodes.
     """
-    from drem_maniskill.envs import is_insertion_task
-    from drem_maniskill.stock_experts import STOCK_EXPERTS
-
     if not is_insertion_task(env_id):
         allowed = STOCK_EXAMINATION if env_id in STOCK_EXPERTS else ("random",)
         policies = [p for p in (STOCK_EXAMINATION if tuple(policies) == EXAMINATION else policies) if p in allowed]
     env = _make_env(env_id, checkpoint, env_kwargs)
     try:
-        expert = [rollout(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
-        curves = {p: [rollout(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
+        expert = [examination_episode(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
+        curves = {p: [examination_episode(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
                   for p in policies}
     finally:
         env.close()

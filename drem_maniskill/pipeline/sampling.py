@@ -13,7 +13,7 @@ its observations (the first and last ones, for the reward's normalisation) and i
 states (the goal state, and the end-effector poses the progress measure compares with) are
 used, never its actions.
 
-Any ManiSkill env works (``drem_maniskill.drem.adapter``): on our tasks the tree holds both
+Any ManiSkill env works (``drem_maniskill.envs.adapter``): on our tasks the tree holds both
 cameras and the F/T history; on a stock task (``PegInsertionSide-v1``, ...) its cameras
 (``base_camera`` as ``fixed``, ``hand_camera`` as ``wrist``) and zeros for F/T. Where the robot
 has a gripper, the measure also compares the gripper opening with the expert's, so the tree
@@ -33,10 +33,16 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional
 
+import gymnasium as gym
 import h5py
 import numpy as np
 import torch
 from tqdm import tqdm
+
+from drem_maniskill.envs import check_env_id
+from drem_maniskill.envs.adapter import adapter_for
+from drem_maniskill.utils.cameras import camera_roles
+from drem_maniskill.utils.state import broadcast_state, first_leaf, state_at
 
 DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "depth", "parent", "in_start_region", "is_seed")
 
@@ -95,12 +101,7 @@ class ExpertTrajectory:
     @property
     def length(self) -> int:
         """Number of recorded states (steps + 1)."""
-        return len(_first_leaf(self.states))
-
-
-def _first_leaf(tree: dict):
-    value = next(iter(tree.values()))
-    return _first_leaf(value) if isinstance(value, dict) else value
+        return len(first_leaf(self.states))
 
 
 def _read_tree(group) -> dict:
@@ -111,18 +112,8 @@ def _read_tree(group) -> dict:
 
 
 def _cameras_in(sensor_data) -> dict:
-    """Modality -> camera uid among recorded cameras (same rule as ``adapter.camera_map_for``)."""
-    from drem_maniskill.drem.adapter import OUR_CAMERAS, WRIST_CAMERA_UIDS
-
-    uids = [u for u in sensor_data.keys() if "rgb" in sensor_data[u]]
-    if all(u in uids for u in OUR_CAMERAS.values()):
-        return dict(OUR_CAMERAS)
-    fixed = [u for u in uids if u not in WRIST_CAMERA_UIDS]
-    wrist = [u for u in uids if u in WRIST_CAMERA_UIDS]
-    out = {"fixed": fixed[0]} if fixed else {}
-    if wrist:
-        out["wrist" if fixed else "fixed"] = wrist[0]
-    return out
+    """Modality -> camera uid among recorded cameras (``utils.cameras.camera_roles``, as for a live env)."""
+    return camera_roles([u for u in sensor_data.keys() if "rgb" in sensor_data[u]])
 
 
 def load_expert(h5_path: str, episode: int = 0) -> ExpertTrajectory:
@@ -173,23 +164,14 @@ def load_expert(h5_path: str, episode: int = 0) -> ExpertTrajectory:
     )
 
 
-def _state_at(states: dict, index: int) -> dict:
-    return {k: (_state_at(v, index) if isinstance(v, dict) else torch.as_tensor(v[index : index + 1])) for k, v in states.items()}
-
-
 # ---------------------------------------------------------------------------- children
 class ChildSampler:
     """An env that restores a seed state and applies random actions, in batches of ``num_envs``."""
 
     def __init__(self, env_id: str, env_kwargs: dict, episode_seed: Optional[int], expert_first_ee=None,
                  start_radius: float = 0.03):
-        import gymnasium as gym
-
-        import drem_maniskill  # noqa: F401
-        from drem_maniskill.drem.adapter import adapter_for
-
         kwargs = {**env_kwargs, "obs_mode": "rgb", "render_mode": None}
-        self.env = gym.make(env_id, **kwargs)
+        self.env = gym.make(check_env_id(env_id), **kwargs)
         self.unwrapped = self.env.unwrapped
         self.adapter = adapter_for(self.env)
         # Colours and object poses of the expert's episode come with its seed.
@@ -222,7 +204,7 @@ class ChildSampler:
             k = len(chunk)
             if k < self.n:
                 chunk = torch.cat([chunk, chunk.new_zeros(self.n - k, chunk.shape[1])])
-            self.adapter.set_state(_broadcast(seed_state, self.n))
+            self.adapter.set_state(broadcast_state(seed_state, self.n))
             obs, *_ = self.env.step(chunk)
             for m, image in self.adapter.images(obs).items():
                 out[f"{m}_rgb"].append(image[:k].cpu().numpy())
@@ -237,21 +219,16 @@ class ChildSampler:
 
     def expert_ee_states(self, states: dict) -> np.ndarray:
         """End-effector states ``[T + 1, 8]`` of the expert, by restoring each recorded env state."""
-        length = len(_first_leaf(states))
+        length = len(first_leaf(states))
         out = []
         for t in range(length):
-            self.adapter.set_state(_broadcast(_state_at(states, t), self.n))
+            self.adapter.set_state(broadcast_state(state_at(states, t), self.n))
             out.append(self.adapter.ee_state()[0].cpu().numpy())
         return np.stack(out)
 
     def close(self):
         """Close the env."""
         self.env.close()
-
-
-def _broadcast(state: dict, n: int) -> dict:
-    return {k: (_broadcast(v, n) if isinstance(v, dict) else torch.as_tensor(v).expand(n, *torch.as_tensor(v).shape[1:]).clone())
-            for k, v in state.items()}
 
 
 _WORKER: Optional[ChildSampler] = None
@@ -379,8 +356,8 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
             pass  # unreadable or from another config: start over
         partial.unlink()
     # Depth 0: the goal state, as the expert's last step recorded it.
-    goal = _state_at(expert.states, goal_index)
-    sampler.adapter.set_state(_broadcast(goal, sampler.n))
+    goal = state_at(expert.states, goal_index)
+    sampler.adapter.set_state(broadcast_state(goal, sampler.n))
     flat = sampler.adapter.flatten(sampler.adapter.get_state())[:1].cpu().numpy()
     in_region = bool(sampler.in_start_region()[0])
     root = {f"{m}_rgb": expert.last_obs[f"{m}_rgb"][None] for m in expert.camera_map}

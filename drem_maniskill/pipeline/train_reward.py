@@ -20,16 +20,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional
 
-import h5py
-import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
-import drem_maniskill
 from drem_maniskill.drem.checkpoint import save_checkpoint
-from drem_maniskill.drem.losses import triplet_loss
-from drem_maniskill.drem.model import CAMERA_OF, DREMModel, ModelConfig, cosine_distance, reconstruction_loss
+from drem_maniskill.drem.model import DREMModel, ModelConfig, cosine_distance
+from drem_maniskill.pipeline.dataset import TreeDataset
+from drem_maniskill.pipeline.losses import reconstruction_loss, triplet_loss
+from drem_maniskill.version import __version__
 
 
 @dataclass
@@ -64,93 +62,6 @@ class TrainConfig:
             raise ValueError(f"unknown training preset {name!r}; choose one of {list(presets)}")
         merged = {**presets[name], **overrides}
         return cls(**merged)
-
-
-def dataset_modalities(path: str) -> tuple:
-    """The modalities a progress tree holds: its cameras, and ``ft`` when the env had our sensor."""
-    try:
-        with h5py.File(path, "r") as f:
-            header = json.loads(f.attrs["header"])
-    except (OSError, KeyError):
-        return ModelConfig().modalities  # TreeDataset reports what is wrong with the file
-    cams = header.get("camera_map", dict(CAMERA_OF))
-    return tuple(m for m in ("fixed", "wrist") if m in cams) + (("ft",) if header.get("has_ft", True) else ())
-
-
-class TreeDataset:
-    """The progress tree in memory: uint8 images at the model's size, F/T, depths."""
-
-    def __init__(self, path: str, config: ModelConfig):
-        if not Path(path).exists():
-            raise FileNotFoundError(f"progress-tree dataset {path} not found; make one with `drem-maniskill sample`")
-        try:
-            f = h5py.File(path, "r")
-        except OSError as err:
-            raise ValueError(f"cannot read dataset {path}: {err}; it may be truncated, re-run `drem-maniskill sample`") from err
-        with f:
-            if not f.attrs.get("complete", False):
-                raise ValueError(f"{path} is an unfinished sampling run; resume it with `drem-maniskill sample`")
-            self.header = json.loads(f.attrs["header"])
-            self.camera_map = self.header.get("camera_map", dict(CAMERA_OF))
-            absent = [c for c in config.cameras if c not in self.camera_map or f"{c}_rgb" not in f]
-            if absent:
-                raise ValueError(
-                    f"{path} has no {absent} camera images ({self.header.get('env_id')} gives {sorted(self.camera_map)}); "
-                    f"train with --modalities {' '.join(sorted(self.camera_map))}"
-                    + (" ft" if self.header.get("has_ft", True) else "")
-                )
-            if "ft" in config.modalities and not self.header.get("has_ft", True):
-                raise ValueError(
-                    f"{path} was sampled on {self.header.get('env_id')}, which has no wrist F/T sensor; "
-                    f"train with --modalities {' '.join(sorted(self.camera_map))}"
-                )
-            self.depth = torch.as_tensor(f["depth"][()]).long()
-            flags = f["in_start_region"][()]
-            if not flags.any():
-                raise ValueError(
-                    f"{path} has no start-region states: the tree never reached the start region, so it cannot "
-                    "define task progress from the start. Re-sample with a larger --max-depth."
-                )
-            self.images = {c: self._resize(f[f"{c}_rgb"][()], config.image_size) for c in config.cameras}
-            self.ft = torch.as_tensor(f["ft"][()]).float()
-            # Raw camera images: h(s_0) and h(s_G) go through the same resizing as rewards do.
-            self.expert = {
-                which: {c: torch.as_tensor(f[f"expert/{which}/{c}_rgb"][()][None]) for c in config.cameras}
-                | ({"ft": torch.as_tensor(f[f"expert/{which}/ft"][()][None]).float()} if "ft" in config.modalities else {})
-                for which in ("first", "last")
-            }
-        self.goal_index = int(torch.nonzero(self.depth == 0)[0])
-        self.by_depth = {int(d): torch.nonzero(self.depth == d).flatten() for d in torch.unique(self.depth)}
-
-    @staticmethod
-    def _resize(images: np.ndarray, size: int) -> torch.Tensor:
-        x = torch.as_tensor(images)
-        if x.shape[1] == size:
-            return x.contiguous()
-        # Once, at load time: area averaging keeps thin features like the peg visible.
-        y = F.interpolate(x.permute(0, 3, 1, 2).float(), size=(size, size), mode="area")
-        return y.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).contiguous()
-
-    def batch(self, idx: torch.Tensor) -> dict:
-        """Raw model inputs of nodes ``idx``."""
-        out = {c: self.images[c][idx] for c in self.images}
-        out["ft"] = self.ft[idx]
-        return out
-
-    def sample_pairs(self, n: int, eps: float, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """``n`` pairs of node indices: the first half neighbours (|depth gap| <= eps), the rest not."""
-        depths = torch.tensor(sorted(self.by_depth))
-        first = torch.randint(len(self.depth), (n,), generator=gen)
-        d1 = self.depth[first]
-        gaps = (depths[None, :] - d1[:, None]).abs()
-        near = gaps <= eps
-        want_near = torch.arange(n) < n // 2
-        allowed = torch.where(want_near[:, None], near, ~near)
-        # A node with no far depth (tiny trees) falls back to a neighbour rather than failing.
-        allowed = torch.where(allowed.any(1, keepdim=True), allowed, near)
-        choice = torch.multinomial(allowed.float(), 1, generator=gen).flatten()
-        second = torch.stack([self.by_depth[int(d)][torch.randint(len(self.by_depth[int(d)]), (1,), generator=gen)][0] for d in depths[choice]])
-        return first, second
 
 
 def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainConfig(), progress: bool = True) -> str:
@@ -235,7 +146,7 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
         model=config.model.to_dict(),
         train={k: v for k, v in asdict(config).items() if k != "model"},
         sampler=data.header.get("config", {}),
-        package_version=drem_maniskill.__version__,
+        package_version=__version__,
     )
     weights = {f"model.{k}": v for k, v in model.state_dict().items()}
     weights["h_start"] = h0[0]

@@ -1,0 +1,201 @@
+"""Scripted policies for our insertion tasks: the expert and the paper's examination policies.
+
+``drem_maniskill.experts.get_policy(name, env, seed=0)`` returns a callable ``policy(obs) -> action`` giving a
+``[num_envs, action_dim]`` tensor for the ``pd_ee_delta_pose`` control mode. The policies read
+privileged state (part and socket poses) and the wrist F/T history from ``env.unwrapped``;
+each keeps a batched phase per env and starts over when that env's ``elapsed_steps`` is 0.
+
+Names (Section IV-C of the paper):
+
+* ``expert``: centre the tip above the opening, fix the yaw, insert.
+* ``direct_success``: the expert's motion, as "imitate the expert" in the paper.
+* ``align_success``: approach with a small translation error until contact, slide to the
+  centre while pressing, insert.
+* ``search_fail``: approach with a small error until contact, slide away from the centre while
+  pressing until the part slides off the socket and contact is lost, then keep going.
+* ``random``: uniform random actions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mani_skill.utils.geometry.rotation_conversions import quaternion_to_axis_angle, quaternion_to_matrix
+
+from drem_maniskill.envs.agent import EE_POS_LIMIT, EE_ROT_LIMIT
+from drem_maniskill.experts.control import require_ee_control
+
+# Contact is declared when the wrist feels this much force along the approach axis.
+CONTACT_FORCE = 3.0
+PRESS_DEPTH = 0.002  # commanded below the surface when pressing: a few newtons through the arm's PD
+
+
+def _yaw_error(env) -> torch.Tensor:
+    """Signed yaw of the part relative to the socket, wrapped to the part's symmetry."""
+    rel = env.tip_pose_in_socket()
+    rot = quaternion_to_matrix(rel.q)
+    yaw = torch.atan2(rot[:, 1, 0], rot[:, 0, 0])
+    if not env.yaw_symmetry:
+        return torch.zeros_like(yaw)
+    period = 2 * np.pi / env.yaw_symmetry
+    return torch.remainder(yaw + period / 2, period) - period / 2
+
+
+def _rotation_error(env) -> torch.Tensor:
+    """Rotation vector ``[B, 3]`` (world axes) from the socket's orientation to the part's.
+
+    Tilt comes from the full relative rotation; yaw is taken modulo the part's symmetry (and
+    ignored for a round part), so the policies never turn a part a needless half turn.
+    """
+    rel = env.tip_pose_in_socket()
+    err = quaternion_to_axis_angle(rel.q)
+    err[:, 2] = _yaw_error(env)
+    rot = quaternion_to_matrix(env.socket.pose.q)
+    return torch.einsum("bij,bj->bi", rot, err)
+
+
+def _socket_to_world(env, vec_xy: torch.Tensor) -> torch.Tensor:
+    """Rotate ``[B, 2]`` vectors from the socket frame to the world frame."""
+    rot = quaternion_to_matrix(env.socket.pose.q)
+    return torch.einsum("bij,bj->bi", rot[:, :2, :2], vec_xy)
+
+
+class ScriptedPolicy:
+    """Base: batched per-env phase, reset at each env's first step, action assembly."""
+
+    def __init__(self, env, seed: int = 0):
+        self.env = env.unwrapped
+        require_ee_control(env)
+        self.device = self.env.device
+        self.n = self.env.num_envs
+        self.generator = torch.Generator(device="cpu").manual_seed(int(seed))
+        self.phase = torch.zeros(self.n, dtype=torch.long, device=self.device)
+
+    def _rand(self, *shape) -> torch.Tensor:
+        return torch.rand(*shape, generator=self.generator).to(self.device)
+
+    def _on_reset(self, mask: torch.Tensor) -> None:
+        self.phase[mask] = 0
+
+    def __call__(self, obs) -> torch.Tensor:
+        fresh = self.env.elapsed_steps.to(self.device) == 0
+        if fresh.any():
+            self._on_reset(fresh)
+        return self.act()
+
+    def act(self) -> torch.Tensor:
+        raise NotImplementedError
+
+    # -- helpers shared by the scripted motions
+    def state(self):
+        rel = self.env.tip_pose_in_socket()
+        ft = self.env.ft.buffer[:, -1]
+        # Approach-axis force in the hand frame (z points down the gripper).
+        return rel.p, _yaw_error(self.env), ft[:, 2].abs()
+
+    def move(self, target_in_socket: torch.Tensor, speed: float = 1.0) -> torch.Tensor:
+        """Action moving the tip towards ``target_in_socket`` ``[B, 3]`` (socket frame), upright.
+
+        The default controller moves relative to the *current* pose, so contact torques would
+        tilt the part a little more at every step; the rotation part undoes any tilt and yaw.
+        """
+        tip = self.env.tip_pose_in_socket().p
+        delta = target_in_socket - tip
+        delta_world = torch.cat([_socket_to_world(self.env, delta[:, :2]), delta[:, 2:]], dim=1)
+        action = torch.zeros(self.n, 6, device=self.device)
+        action[:, :3] = (delta_world / EE_POS_LIMIT).clamp(-speed, speed)
+        # pd_ee_delta_pose rotates about root-aligned axes at the TCP, by the action times
+        # ``rot_lower`` (= -EE_ROT_LIMIT in ManiSkill 3.0): +error undoes the error.
+        action[:, 3:] = (_rotation_error(self.env) / EE_ROT_LIMIT).clamp(-1, 1)
+        return action
+
+
+class ExpertPolicy(ScriptedPolicy):
+    """Centre above the opening, correct yaw, then descend along the axis to the bottom."""
+
+    pre_height = 0.006
+    centred = 0.0006
+
+    def act(self) -> torch.Tensor:
+        tip, yaw, _ = self.state()
+        radial = tip[:, :2].norm(dim=1)
+        aligned = (radial < self.centred) & (yaw.abs() < np.deg2rad(2))
+        # Once aligned above the hole (or already inside it), go down; never back up.
+        self.phase = torch.where(aligned | (tip[:, 2] < 0), torch.ones_like(self.phase), self.phase)
+        target = torch.zeros_like(tip)
+        target[:, 2] = torch.where(self.phase == 1, tip[:, 2] - 0.005, torch.full_like(tip[:, 2], self.pre_height))
+        return self.move(target, speed=0.5)
+
+
+class AlignSuccessPolicy(ScriptedPolicy):
+    """Approach off-centre until contact, slide to the centre while pressing, insert."""
+
+    error_range = (0.002, 0.004)
+
+    def _on_reset(self, mask):
+        super()._on_reset(mask)
+        if not hasattr(self, "offset"):
+            self.offset = torch.zeros(self.n, 2, device=self.device)
+        angle = self._rand(self.n) * 2 * np.pi
+        radius = self.error_range[0] + self._rand(self.n) * (self.error_range[1] - self.error_range[0])
+        new = torch.stack([torch.cos(angle), torch.sin(angle)], dim=1) * radius[:, None]
+        self.offset[mask] = new[mask]
+
+    def act(self) -> torch.Tensor:
+        tip, yaw, force = self.state()
+        radial = tip[:, :2].norm(dim=1)
+        contact = force > CONTACT_FORCE
+        # 0 approach with the error, 1 slide to the centre pressing, 2 insert.
+        self.phase = torch.where((self.phase == 0) & (contact | (tip[:, 2] < 0.0005)), 1, self.phase)
+        self.phase = torch.where((self.phase == 1) & ((radial < 0.0006) | (tip[:, 2] < -0.002)), 2, self.phase)
+        target = torch.zeros_like(tip)
+        approach = self.phase == 0
+        target[approach, :2] = self.offset[approach]
+        target[approach, 2] = -PRESS_DEPTH
+        slide = self.phase == 1
+        target[slide, :2] = tip[slide, :2] - 0.006 * tip[slide, :2] / radial[slide, None].clamp(min=1e-6)
+        target[slide, 2] = -PRESS_DEPTH
+        insert = self.phase == 2
+        target[insert, 2] = tip[insert, 2] - 0.01
+        return self.move(target, speed=0.5)
+
+
+class SearchFailPolicy(AlignSuccessPolicy):
+    """Approach off-centre until contact, slide away from the centre until contact is lost."""
+
+    def act(self) -> torch.Tensor:
+        tip, yaw, force = self.state()
+        radial = tip[:, :2].norm(dim=1).clamp(min=1e-6)
+        contact = force > CONTACT_FORCE
+        # 0 approach, 1 slide away pressing, 2 lost contact: keep drifting outwards and down.
+        self.phase = torch.where((self.phase == 0) & (contact | (tip[:, 2] < 0.0005)), 1, self.phase)
+        self.phase = torch.where((self.phase == 1) & (tip[:, 2] < -0.003), 2, self.phase)
+        direction = tip[:, :2] / radial[:, None]
+        target = torch.zeros_like(tip)
+        approach = self.phase == 0
+        target[approach, :2] = self.offset[approach]
+        target[approach, 2] = -PRESS_DEPTH
+        away = ~approach
+        target[away, :2] = tip[away, :2] + 0.006 * direction[away]
+        target[away, 2] = torch.where(self.phase[away] == 1, -PRESS_DEPTH, tip[away, 2] - 0.004)
+        return self.move(target, speed=0.5)
+
+
+class RandomPolicy(ScriptedPolicy):
+    """Uniform random actions in the action space (seeded)."""
+
+    def act(self) -> torch.Tensor:
+        return self._rand(self.n, 6) * 2 - 1
+
+
+
+# Name -> policy class, for our insertion tasks (the paper's Section IV-C).
+POLICIES: dict[str, type[ScriptedPolicy]] = {
+    "expert": ExpertPolicy,
+    "direct_success": ExpertPolicy,
+    "align_success": AlignSuccessPolicy,
+    "search_fail": SearchFailPolicy,
+    "random": RandomPolicy,
+}
+POLICY_NAMES = tuple(POLICIES)

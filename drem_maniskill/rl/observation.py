@@ -1,0 +1,54 @@
+"""The policy's observation: ManiSkill's rgb observation as SB3 wants it (channel-first uint8 cameras, F/T, state)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn.functional as F
+from gymnasium import spaces
+
+
+def symlog(x: torch.Tensor) -> torch.Tensor:
+    """``sign(x) log(1 + |x|)``: F/T readings span 0.1-150 N; the networks want inputs of order 1."""
+    return torch.sign(x) * torch.log1p(x.abs())
+
+
+class PolicyObservation(gym.ObservationWrapper):
+    """ManiSkill rgb obs -> the policy's dict: uint8 ``[B, 3, S, S]`` per camera, ``ft`` ``[B, 8, 6]``, ``state``."""
+
+    def __init__(self, env: gym.Env, image_size: int, cameras=("fixed_camera", "wrist_camera"), ft: bool = True,
+                 state: bool = True):
+        super().__init__(env)
+        self.image_size, self.cameras, self.use_ft, self.use_state = int(image_size), tuple(cameras), ft, state
+        src = env.unwrapped.single_observation_space
+        single = {}
+        for uid in self.cameras:
+            # Channel-first uint8: SB3 then sees an image space and scales it by 1/255 without transposing.
+            single[uid] = spaces.Box(0, 255, (3, self.image_size, self.image_size), np.uint8)
+        if ft:
+            single["ft"] = spaces.Box(-np.inf, np.inf, src["extra"]["ft"].shape, np.float32)
+        if state:
+            n = src["agent"]["qpos"].shape[0] + src["extra"]["tcp_pose"].shape[0]
+            single["state"] = spaces.Box(-np.inf, np.inf, (n,), np.float32)
+        self.single_observation_space = spaces.Dict(single)
+        b = env.unwrapped.num_envs
+        self.observation_space = spaces.Dict(
+            {k: spaces.Box(np.broadcast_to(s.low, (b, *s.shape)), np.broadcast_to(s.high, (b, *s.shape)), (b, *s.shape), s.dtype)
+             for k, s in single.items()})
+
+    def observation(self, obs: dict) -> dict:
+        """Convert one batched observation (torch tensors on the env's device)."""
+        out = {}
+        for uid in self.cameras:
+            x = obs["sensor_data"][uid]["rgb"][..., :3].permute(0, 3, 1, 2)
+            if x.shape[-1] != self.image_size:
+                # Exact block means (the render is 128 px, a multiple of image_size): no aliasing of thin rims.
+                k = x.shape[-1] // self.image_size
+                x = F.avg_pool2d(x.float(), k).round().to(torch.uint8)
+            out[uid] = x.contiguous()
+        if self.use_ft:
+            out["ft"] = symlog(obs["extra"]["ft"].float())
+        if self.use_state:
+            out["state"] = torch.cat([obs["agent"]["qpos"], obs["extra"]["tcp_pose"]], dim=-1).float()
+        return out

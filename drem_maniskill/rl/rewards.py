@@ -1,0 +1,133 @@
+"""The rewards SAC can train with, as one table: each entry knows how to make its env and which tasks it fits.
+
+``REWARDS`` maps a reward name to a ``RewardSpec``; adding a reward is one entry here, and the
+run loop (``rl.train_policy``) names none of them. A spec makes the env with its reward
+(``make``), says whether it fits a task (``supports``), and, for a reward that learns during
+the run (VICE-RAQ), builds that learner (``learner``): an object with the ``LearnedReward``
+interface, which the run loop updates every ``update_every`` env steps, checkpoints as
+``<reward>.pt`` and uses to reward its evaluation env.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional, Protocol
+
+import gymnasium as gym
+
+from drem_maniskill.baselines.vice import VICEConfig, VICERewardWrapper
+from drem_maniskill.drem import checkpoint as drem_checkpoints
+from drem_maniskill.drem.wrapper import DREMRewardWrapper
+from drem_maniskill.envs import is_insertion_task
+from drem_maniskill.experts import collect_goal_examples, ee_control_kwargs
+from drem_maniskill.utils.episodes import max_episode_steps
+
+
+class LearnedReward(Protocol):
+    """A reward that learns while the policy does: a gymnasium wrapper around the training env."""
+
+    update_every: int  # env steps between ``update`` calls
+
+    def update(self) -> dict:
+        """Train on what was visited; returns metrics to log."""
+
+    def state_dict(self) -> dict:
+        """Everything to resume (``torch.save``-able)."""
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a ``state_dict()``."""
+
+    def evaluation_env(self, env: gym.Env) -> gym.Env:
+        """``env`` rewarded by this reward, learning nothing from it."""
+
+
+def env_reward_mode(mode: str) -> Callable:
+    """``make`` of a reward that is an env reward mode of ours."""
+
+    def make(task: str, kwargs: dict) -> gym.Env:
+        return gym.make(task, reward_mode=mode, **kwargs)
+
+    return make
+
+
+def _drem(image_only: bool) -> Callable:
+    """``make`` of DREM from the shipped checkpoint: the ``drem`` mode on our tasks, the wrapper on ManiSkill's."""
+
+    def make(task: str, kwargs: dict) -> gym.Env:
+        path = drem_checkpoints.default_checkpoint(task, image_only=image_only)
+        if not path.exists():
+            if image_only:
+                raise FileNotFoundError(
+                    f"reward 'drem-image' needs the image-only DREM checkpoint {path}, which is missing. Make it with "
+                    f"scripts/train_default_rewards.sh (it copies <out>/reward_image/drem.pt there), or by hand: "
+                    f"drem-maniskill train-reward --dataset <tree.h5> --modalities fixed wrist --out DIR, "
+                    f"then cp DIR/drem.pt {path}"
+                )
+            raise FileNotFoundError(f"reward 'drem' on {task} needs {path}; make it with "
+                                    + ("scripts/train_default_rewards.sh" if is_insertion_task(task)
+                                       else f"scripts/train_stock_rewards.sh {task}"))
+        if is_insertion_task(task):
+            return gym.make(task, reward_mode="drem", drem_checkpoint=str(path), **kwargs)
+        env = gym.make(task, reward_mode="sparse", **kwargs)
+        try:
+            return DREMRewardWrapper(env, str(path))
+        except Exception:
+            env.close()
+            raise
+
+    return make
+
+
+def _vice_learner(env: gym.Env, task: str, seed: int, options: dict, state: Optional[dict], make_kwargs: dict):
+    """VICE-RAQ around the training env; goals from ``state`` when resuming, else from the scripted expert."""
+    options = dict(options)
+    goal_seeds = int(options.pop("goal_seeds", 10))
+    vcfg = VICEConfig(**{"seed": seed, **options})
+    if state is not None:
+        goals = state["positives"][: state["num_goal_examples"]]
+    else:
+        # Goal images from the scripted expert in the training env's own look (colours, render style).
+        goals = collect_goal_examples(task, seeds=range(goal_seeds), env_kwargs=make_kwargs, cameras=vcfg.cameras,
+                                      max_steps=max_episode_steps(task))
+    vice = VICERewardWrapper(env, goals, vcfg)
+    if state is not None:
+        vice.load_state_dict(state)
+    return vice
+
+
+@dataclass(frozen=True)
+class RewardSpec:
+    """How a reward is made: ``make(task, gym_kwargs) -> env``, the tasks it fits, an optional learner."""
+
+    about: str
+    make: Callable[[str, dict], gym.Env]
+    stock_tasks: bool = False  # also on ManiSkill's own tasks (they have no F/T, engineered or dense of ours)
+    learner: Optional[Callable] = None  # (env, task, seed, options, state, gym_kwargs) -> LearnedReward
+
+    def supports(self, task: str) -> bool:
+        """Whether this reward can be used on ``task``."""
+        return is_insertion_task(task) or self.stock_tasks
+
+
+REWARDS: dict[str, RewardSpec] = {
+    "sparse": RewardSpec("1 on success, else 0", env_reward_mode("sparse"), stock_tasks=True),
+    "dense": RewardSpec("the task's staged dense reward in [0, 1] (ManiSkill style)", env_reward_mode("normalized_dense")),
+    "engineered": RewardSpec("-exp(kappa ||x - x_G||), the paper's Engineered", env_reward_mode("engineered")),
+    "drem": RewardSpec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", _drem(False),
+                       stock_tasks=True),
+    "drem-image": RewardSpec("DREM on images only, rewards/<task>/drem_image.pt", _drem(True)),
+    # VICE replaces the reward; the env's sparse one is cheap and is kept in info["original_reward"].
+    "vice": RewardSpec("VICE-RAQ success classifier on the images", env_reward_mode("sparse"), learner=_vice_learner),
+}
+
+
+def reward_spec(name: str) -> RewardSpec:
+    """The ``REWARDS`` entry of ``name``, or a ValueError listing the choices."""
+    if name not in REWARDS:
+        raise ValueError(f"unknown reward {name!r}; choose one of: {', '.join(REWARDS)}")
+    return REWARDS[name]
+
+
+def supported_rewards(task: str) -> list:
+    """The reward names that fit ``task``."""
+    return [name for name, spec in REWARDS.items() if spec.supports(task)]

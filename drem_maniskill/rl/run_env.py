@@ -1,0 +1,43 @@
+"""The env of a SAC run: the task, with the reward of ``rewards.REWARDS``, seen through the policy's observation."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import gymnasium as gym
+
+from drem_maniskill.envs import check_env_id, is_insertion_task
+from drem_maniskill.experts import ee_control_kwargs
+from drem_maniskill.rl.observation import PolicyObservation
+from drem_maniskill.rl.rewards import reward_spec, supported_rewards
+from drem_maniskill.utils.cameras import camera_roles, env_cameras
+
+
+def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eval: bool = False):
+    """``(env, learned_reward_or_None)`` of an ``RLConfig``: rgb obs rendered at 128 px, the named reward.
+
+    A learned reward (VICE-RAQ) wraps the training env and is returned beside it, restored from
+    ``learned_state`` when resuming; an evaluation env (``for_eval``, one env) is rewarded by the
+    training env's ``learned`` reward, which learns nothing from it. On ManiSkill's own tasks the
+    policy sees the task's two cameras in the roles of ours (``base_camera``, ``hand_camera``) and
+    no F/T; control is ``pd_ee_delta_pose``, as for the expert a DREM checkpoint was made from.
+    """
+    task = check_env_id(config.task)
+    spec = reward_spec(config.reward)
+    if not spec.supports(task):
+        raise ValueError(f"on ManiSkill's own {task} the rewards are {supported_rewards(task)} "
+                         f"(drem: rewards/{task}/drem.pt), not {config.reward!r}")
+    kwargs = dict(obs_mode="rgb", sim_backend=config.sim_backend, **ee_control_kwargs(task, config.env_kwargs))
+    env = spec.make(task, dict(kwargs, num_envs=1 if for_eval else config.num_envs))
+    if spec.learner is not None:
+        if for_eval:
+            env = learned.evaluation_env(env)
+        else:
+            env = learned = spec.learner(env, task, config.seed, config.reward_kwargs, learned_state, kwargs)
+    cameras = config.cameras if is_insertion_task(task) else tuple(camera_roles(env_cameras(env)).values())
+    return PolicyObservation(env, config.image_size, cameras, ft=config.uses_ft, state=config.policy_state), learned
+
+
+def make_eval_env(config, learned=None) -> gym.Env:
+    """The one-env evaluation env of a run (rewarded by ``learned`` where the reward learns)."""
+    return make_env(config, learned=learned, for_eval=True)[0]

@@ -1,0 +1,56 @@
+"""Env states as nested dicts of batched tensors: flatten, unflatten, pick one step, broadcast."""
+
+from __future__ import annotations
+
+import torch
+
+
+def first_leaf(tree: dict):
+    """The first non-dict value of a nested dict."""
+    value = next(iter(tree.values()))
+    return first_leaf(value) if isinstance(value, dict) else value
+
+
+def state_at(states: dict, index: int) -> dict:
+    """Step ``index`` of a recorded state tree (every leaf ``[T, ...]``), as a batch of one."""
+    return {k: (state_at(v, index) if isinstance(v, dict) else torch.as_tensor(v[index : index + 1])) for k, v in states.items()}
+
+
+def broadcast_state(state: dict, n: int) -> dict:
+    """A batch-of-one state repeated to ``n`` envs (copies, so the envs can diverge)."""
+    return {k: (broadcast_state(v, n) if isinstance(v, dict) else torch.as_tensor(v).expand(n, *torch.as_tensor(v).shape[1:]).clone())
+            for k, v in state.items()}
+
+
+def flatten_state(state: dict) -> torch.Tensor:
+    """Flat ``[B, D]`` form of a state dict, in ManiSkill's key order."""
+    from mani_skill.utils import common
+
+    return common.flatten_state_dict(state, use_torch=True)
+
+
+def unflatten_like(template: dict, flat: torch.Tensor) -> dict:
+    """Split a flat state ``[B, D]`` into a dict shaped like ``template`` (ManiSkill's key order)."""
+    out, start = {}, 0
+
+    def walk(t: dict, o: dict):
+        nonlocal start
+        for key, value in t.items():
+            if isinstance(value, dict):
+                o[key] = {}
+                walk(value, o[key])
+                continue
+            value = torch.as_tensor(value)
+            width = 1 if value.ndim == 1 else value.shape[-1]
+            o[key] = flat[:, start : start + width]
+            if value.ndim == 1:
+                o[key] = o[key][:, 0]
+            start += width
+
+    walk(template, out)
+    if start != flat.shape[1]:
+        raise ValueError(
+            f"flat state has {flat.shape[1]} values but this env's state has {start}; "
+            "it was made by another task or configuration. Prefer env.get_state_dict()."
+        )
+    return out

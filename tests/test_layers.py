@@ -1,0 +1,139 @@
+"""The package's layering (docs/architecture.md) holds: imports point down, and no module imports itself back.
+
+Every ``import`` and ``from ... import`` of ``drem_maniskill`` in the package's source is read
+with ``ast``, function-local ones included (they keep a cycle from failing at import time, not
+from being a cycle).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+import drem_maniskill
+
+PACKAGE = Path(drem_maniskill.__file__).parent
+
+# Top-level part of the package -> its layer. A module may import a lower layer, or its own part.
+LAYERS = {
+    "version": 0, "utils": 0,
+    "drem": 1, "baselines": 1,
+    "envs": 2,
+    "experts": 3,
+    "pipeline": 4, "rl": 4,
+    "demo": 5, "launcher": 5,
+    "cli": 6, "scripted": 6, "__init__": 6,
+}
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _is_module(name: str) -> bool:
+    base = PACKAGE.parent.joinpath(*name.split("."))
+    return base.with_suffix(".py").exists() or (base / "__init__.py").exists()
+
+
+def package_imports() -> dict:
+    """Module name -> the package modules it imports (``from pkg import submodule`` counts as the submodule)."""
+    graph = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        name = _module_name(path)
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets |= {a.name for a in node.names if a.name.split(".")[0] == "drem_maniskill"}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "drem_maniskill":
+                for alias in node.names:
+                    sub = f"{node.module}.{alias.name}"
+                    targets.add(sub if _is_module(sub) else node.module)
+            elif isinstance(node, ast.ImportFrom) and node.level:
+                raise AssertionError(f"{path}: relative import; write drem_maniskill.... so this test can read it")
+        graph[name] = targets - {name}
+    return graph
+
+
+def part_of(module: str) -> str:
+    """The top-level part of a module name (``drem_maniskill`` itself is ``__init__``)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def test_every_part_has_a_layer():
+    parts = {part_of(m) for m in package_imports()}
+    assert parts <= set(LAYERS), f"give {sorted(parts - set(LAYERS))} a layer here and in docs/architecture.md"
+
+
+def upward_imports(graph: dict) -> list:
+    """The imports of ``graph`` into another part of the same or a higher layer."""
+    wrong = []
+    for module, targets in graph.items():
+        src = part_of(module)
+        for target in targets:
+            dst = part_of(target)
+            if dst != src and LAYERS[dst] >= LAYERS[src]:
+                wrong.append(f"{module} (layer {LAYERS[src]}) imports {target} (layer {LAYERS[dst]})")
+    return sorted(wrong)
+
+
+def test_imports_point_down():
+    wrong = upward_imports(package_imports())
+    assert not wrong, "imports against the layering:\n" + "\n".join(wrong)
+
+
+def find_cycle(graph: dict):
+    """One import cycle of ``graph`` as a list of modules, or None."""
+    state, stack = {}, []
+
+    def visit(node):
+        state[node] = "open"
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == "open":
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state:
+                found = visit(nxt)
+                if found:
+                    return found
+        stack.pop()
+        state[node] = "done"
+        return None
+
+    for node in sorted(graph):
+        if node not in state:
+            found = visit(node)
+            if found:
+                return found
+    return None
+
+
+def test_no_import_cycle():
+    cycle = find_cycle(package_imports())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_checks_catch_what_they_are_for():
+    """An upward import, a same-layer import between parts and a cycle, planted in a copy of the graph, are found."""
+    graph = {k: set(v) for k, v in package_imports().items()}
+    graph["drem_maniskill.utils.cameras"].add("drem_maniskill.envs.adapter")  # up, and a cycle through adapter
+    graph["drem_maniskill.pipeline.examine"].add("drem_maniskill.rl.compare")  # sideways
+    wrong = upward_imports(graph)
+    assert any(w.startswith("drem_maniskill.utils.cameras (layer 0) imports drem_maniskill.envs.adapter") for w in wrong)
+    assert any(w.startswith("drem_maniskill.pipeline.examine (layer 4) imports drem_maniskill.rl.compare") for w in wrong)
+    cycle = find_cycle(graph)
+    assert cycle is not None and "drem_maniskill.utils.cameras" in cycle
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+@pytest.mark.parametrize("call", ["update_render(update_sensors=True"])
+def test_one_place_renders_the_cameras(call):
+    places = [str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py") if call in p.read_text()]
+    assert places == ["utils/cameras.py"], places
