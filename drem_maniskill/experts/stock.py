@@ -169,6 +169,21 @@ class _StockExpert:
             self._grasp_raw[fresh] = self.grasp_pose().raw_pose[fresh]
         return Pose.create(self._grasp_raw.clone())
 
+    def grippers(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Open and closed gripper commands ``[B]``."""
+        return (torch.full((self.n,), GRIPPER_OPEN, device=self.device),
+                torch.full((self.n,), GRIPPER_CLOSED, device=self.device))
+
+    def advance_grasp(self, above: Pose, grasp: Pose, above_rot_tol: float, grasp_pos_tol: float, grasp_timeout: int) -> None:
+        """The grasp phases every stock expert shares: 0 reach ``above`` the grasp, 1 descend to it, 2 close, 3 lift."""
+        tcp = self.env.agent.tcp.pose
+        pe, re = self.pose_error(above, tcp)
+        self._advance((pe < 0.01) & (re < above_rot_tol), 0, 1)
+        pe, re = self.pose_error(grasp, tcp)
+        self._advance(((pe < grasp_pos_tol) & (re < 0.05)) | (self.clock > grasp_timeout), 1, 2)
+        self._advance(self.clock >= self.close_steps, 2, 3)
+        self._advance(tcp.p[:, 2] > grasp.p[:, 2] + self.lift * 0.6, 3, 4)
+
     def _advance(self, cond: torch.Tensor, frm: int, to: int) -> None:
         self.phase = torch.where((self._start == frm) & cond, torch.full_like(self.phase, to), self.phase)
 
@@ -214,22 +229,14 @@ class PegInsertionSideExpert(_StockExpert):
 
     def act(self) -> torch.Tensor:
         u = self.env
-        n = self.n
-        tcp = u.agent.tcp.pose
-        open_ = torch.full((n,), GRIPPER_OPEN, device=self.device)
-        closed = torch.full((n,), GRIPPER_CLOSED, device=self.device)
+        open_, closed = self.grippers()
         half = u.peg_half_sizes[:, 0]
 
         grasp = self.latched_grasp()
         above = _pose(grasp.p + torch.tensor([0, 0, 0.05], device=self.device), grasp.q)
-        pe, re = self.pose_error(above, tcp)
         # The open fingers straddle the peg with room to spare, so the last of the wrist turn
         # can finish on the way down (the turn, not the travel, is what takes longest).
-        self._advance((pe < 0.01) & (re < 0.15), 0, 1)
-        pe, re = self.pose_error(grasp, tcp)
-        self._advance(((pe < 0.004) & (re < 0.05)) | (self.clock > 20), 1, 2)
-        self._advance(self.clock >= self.close_steps, 2, 3)
-        self._advance(tcp.p[:, 2] > grasp.p[:, 2] + self.lift * 0.6, 3, 4)
+        self.advance_grasp(above, grasp, above_rot_tol=0.15, grasp_pos_tol=0.004, grasp_timeout=20)
 
         goal = u.goal_pose  # peg pose with its head at the hole centre
         peg = u.peg.pose
@@ -298,20 +305,13 @@ class PlugChargerExpert(_StockExpert):
     def act(self) -> torch.Tensor:
         u = self.env
         n = self.n
-        tcp = u.agent.tcp.pose
-        open_ = torch.full((n,), GRIPPER_OPEN, device=self.device)
-        closed = torch.full((n,), GRIPPER_CLOSED, device=self.device)
+        open_, closed = self.grippers()
 
         grasp = self.latched_grasp()
         # 5 cm back along the approach direction, as in the motion-planning solution.
         approach = grasp.to_transformation_matrix()[:, :3, 2]
         above = _pose(grasp.p - 0.05 * approach, grasp.q)
-        pe, re = self.pose_error(above, tcp)
-        self._advance((pe < 0.01) & (re < 0.05), 0, 1)
-        pe, re = self.pose_error(grasp, tcp)
-        self._advance(((pe < 0.003) & (re < 0.05)) | (self.clock > 15), 1, 2)
-        self._advance(self.clock >= self.close_steps, 2, 3)
-        self._advance(tcp.p[:, 2] > grasp.p[:, 2] + self.lift * 0.6, 3, 4)
+        self.advance_grasp(above, grasp, above_rot_tol=0.05, grasp_pos_tol=0.003, grasp_timeout=15)
 
         goal = u.goal_pose
         charger = u.charger.pose
