@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
+
+from drem_maniskill.utils.cli import run_command
 
 
 def _cmd_demo(args) -> None:
@@ -180,19 +181,13 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from drem_maniskill.envs import check_env_id  # registers the tasks
 
-    try:
+    def check_tasks(args) -> None:
         # An unknown task id fails here, with the ids we know, rather than deep inside gymnasium.
         for task in [getattr(args, "task", None), *(getattr(args, "tasks", None) or [])]:
             if task is not None:
                 check_env_id(task)
-        args.func(args)
-    except (ValueError, FileNotFoundError) as err:
-        # Bad input (unknown reward, missing or mismatched file): the message says the fix.
-        if os.environ.get("DREM_DEBUG"):
-            raise
-        print(f"drem-maniskill {args.command}: error: {err}", file=sys.stderr)
-        return 2
-    return 0
+
+    return run_command("drem-maniskill", args, check_tasks)
 
 
 if __name__ == "__main__":

@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from drem_maniskill.utils.cli import run_command
+
 
 def _cmd_train_policy(args) -> None:
     from drem_maniskill.envs import check_env_id
@@ -75,16 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Entry point."""
-    args = build_parser().parse_args(argv)
-    try:
-        args.func(args)
-    except ValueError as err:
-        # Bad names (task, reward, algorithm): the message lists the choices.
-        if not str(err).startswith(("unknown reward", "unknown task", "unknown algorithm")):
-            raise
-        print(f"python -m drem_maniskill.rl {args.command}: error: {err}", file=sys.stderr)
-        return 2
-    return 0
+    return run_command("python -m drem_maniskill.rl", build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":
