@@ -85,6 +85,9 @@ class RLConfig:
         return cls(**{**base, **overrides})
 
     def __post_init__(self):
+        if not isinstance(self.preset, str):
+            # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light".
+            self.preset = "light"
         for key in ("cameras", "cnn_channels", "net_arch"):
             setattr(self, key, tuple(getattr(self, key)))
         if 128 % self.image_size:
