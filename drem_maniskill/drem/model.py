@@ -9,7 +9,7 @@ config (``modalities``), so the paper's "Image learned" baseline is this model w
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn.functional as F

@@ -115,7 +115,7 @@ class DREMReward(nn.Module):
         self._fast_tensors = None
         return super()._apply(fn, *args, **kwargs)
 
-    def _fast(self) -> FastEncoder:
+    def fast_encoder(self) -> FastEncoder:
         """The fast encoder of the current weights (rebuilt after ``.to()``, ``load_state_dict`` or edits)."""
         tensors = getattr(self, "_fast_tensors", None)
         if tensors is None:
@@ -151,7 +151,7 @@ class DREMReward(nn.Module):
     @torch.no_grad()
     def embed(self, batch: dict) -> torch.Tensor:
         """Latent ``h(s)`` ``[B, 128]`` of raw inputs (uint8 images of any size, F/T)."""
-        fast = self._fast()
+        fast = self.fast_encoder()
         h = None
         if self._batch_size(batch) < self.FAST_MAX_BATCH:
             if self.h_goal.device.type == "cpu":

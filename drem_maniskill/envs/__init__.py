@@ -14,9 +14,8 @@ import importlib
 from mani_skill.utils.registration import REGISTERED_ENVS
 
 from drem_maniskill.envs.agent import PandaInsertion
-from drem_maniskill.envs.insertion_base import InsertionEnv
-
 from drem_maniskill.envs.aliases import drem_env_id, register_drem_env, register_task_aliases
+from drem_maniskill.envs.insertion_base import InsertionEnv
 
 # The one task list: env id -> the module of its task file in this folder (which registers the
 # task with ManiSkill's @register_env).

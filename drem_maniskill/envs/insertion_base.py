@@ -278,7 +278,6 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
 
     def _solve_ik(self, tcp_target: Pose, env_idx: torch.Tensor) -> torch.Tensor:
         """Full robot qpos ``[b, dof]`` that puts the TCP at ``tcp_target`` (robot base = world)."""
-        robot = self.agent.robot
         rest = torch.as_tensor(self.agent.keyframes["rest"].qpos, dtype=torch.float32, device=self.device)
         q = rest.repeat(len(env_idx), 1)
         q[:, self._finger_idx] = self.grip_half_width

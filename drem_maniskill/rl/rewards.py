@@ -19,7 +19,7 @@ from drem_maniskill.baselines.vice import VICEConfig, VICERewardWrapper
 from drem_maniskill.drem import checkpoint as drem_checkpoints
 from drem_maniskill.drem.wrapper import DREMRewardWrapper
 from drem_maniskill.envs import is_insertion_task
-from drem_maniskill.experts import collect_goal_examples, ee_control_kwargs
+from drem_maniskill.experts import collect_goal_examples
 from drem_maniskill.utils.episodes import max_episode_steps
 
 
