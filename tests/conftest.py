@@ -1,4 +1,4 @@
-"""Shared fixtures: one env per task and obs mode per test session (creating one costs seconds)."""
+"""Shared fixtures: one env per task and obs mode per test session (creating one costs seconds), the tiny DREM chain."""
 
 from __future__ import annotations
 
@@ -6,10 +6,14 @@ import gymnasium as gym
 import pytest
 import torch
 
-import drem_maniskill  # noqa: F401  (registers the tasks)
-from drem_maniskill.scripted import get_policy
+from drem_maniskill.drem.checkpoint import save_checkpoint
+from drem_maniskill.drem.model import DREMModel, ModelConfig
+from drem_maniskill.envs import TASKS  # noqa: F401  (the tests' task parameter; importing registers the tasks)
+from drem_maniskill.experts import get_policy, record_expert, rollout
+from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
+from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
+from drem_maniskill.version import __version__
 
-TASKS = ("PegInHole-v1", "USBInsertion-v1")
 _cache: dict = {}
 
 
@@ -29,17 +33,38 @@ def _close_envs():
     _cache.clear()
 
 
+@pytest.fixture(scope="session")
+def pipeline(tmp_path_factory):
+    """Record one expert episode, sample a tiny tree, train a tiny reward (about a minute)."""
+    root = tmp_path_factory.mktemp("drem")
+    rec = record_expert("PegInHole-v1", str(root / "expert"), seeds=[5], obs_mode="rgb")
+    tree = backward_sample(rec.h5_path, str(root / "tree.h5"), SamplerConfig.preset("tiny"), progress=False)
+    ckpt = train_reward(tree, str(root / "reward"), TrainConfig.preset("tiny"), progress=False)
+    return dict(root=root, expert=rec.h5_path, tree=tree, checkpoint=ckpt)
+
+
+def tiny_checkpoint(path, env_id: str, modalities=("fixed", "wrist", "ft"), camera_uids=("fixed_camera", "wrist_camera")) -> str:
+    """An untrained, tiny DREM checkpoint for ``env_id`` (stock tasks: ``modalities=("fixed", "wrist")`` and their cameras)."""
+    torch.manual_seed(0)
+    config = ModelConfig(modalities=modalities, image_size=64, image_dim=8, latent_dim=16, channels=(4,) * 6)
+    model = DREMModel(config)
+    header = dict(env_id=env_id, env_kwargs={}, modalities=list(config.modalities), camera_uids=list(camera_uids),
+                  image_size=config.image_size, ft_history=config.ft_history, render_style="lean", model=config.to_dict(),
+                  train={}, sampler={}, package_version=__version__)
+    weights = {f"model.{k}": v for k, v in model.state_dict().items()}
+    weights["h_start"], weights["h_goal"] = torch.randn(16), torch.randn(16)
+    return save_checkpoint(str(path), header, weights)
+
+
+def tiny_stock_checkpoint(path, env_id: str = "PegInsertionSide-v1") -> str:
+    """An untrained image-only checkpoint for a stock task (its base and hand cameras)."""
+    return tiny_checkpoint(path, env_id, ("fixed", "wrist"), ("base_camera", "hand_camera"))
+
+
 def run_policy(env, name: str, seed: int, steps: int = 50, stop_on_success: bool = True, policy_seed: int = 0):
     """Run a scripted policy for one episode; returns the last (obs, info) and the step count."""
-    policy = get_policy(name, env, seed=policy_seed)
-    obs, info = env.reset(seed=seed)
-    for t in range(steps):
-        obs, _, terminated, truncated, info = env.step(policy(obs))
-        if stop_on_success and bool(info["success"].any()):
-            break
-        if bool(truncated.any()):
-            break
-    return obs, info, t + 1
+    ep = rollout(env, get_policy(name, env, seed=policy_seed), seed, steps, stop_on_success=stop_on_success)
+    return ep.obs, ep.info, ep.length
 
 
 def hand_to_part(env) -> "torch.Tensor":

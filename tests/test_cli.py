@@ -51,3 +51,29 @@ def test_demo_writes_its_plots(tmp_path):
     summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
     for plot in summary["PegInHole-v1"]["plots"]:
         assert Path(plot).stat().st_size > 2_000, plot
+
+
+@pytest.mark.parametrize("argv", [
+    ["train-policy", "--task", "NoSuchTask-v1", "--steps", "8"],
+    ["record-expert", "--task", "NoSuchTask-v1"],
+    ["scripted-success", "--task", "NoSuchTask-v1"],
+    ["examine", "--task", "NoSuchTask-v1", "--checkpoint", "none.pt"],
+    ["demo", "--tasks", "PegInHole-v1", "NoSuchTask-v1"],
+])
+def test_an_unknown_task_id_is_one_error_line_listing_the_ids(argv, capsys, tmp_path, monkeypatch):
+    from drem_maniskill.cli import main
+
+    monkeypatch.chdir(tmp_path)  # nothing may be written, but if it were, not into the checkout
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"drem-maniskill {argv[0]}: error: unknown task id 'NoSuchTask-v1'. "
+                          "Ours: PegInHole-v1, USBInsertion-v1, PegInHole-DREM-v1, USBInsertion-DREM-v1; ManiSkill's: ")
+    assert "PegInsertionSide-v1" in err and "Traceback" not in err and err.count("\n") == 1
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_misspelt_task_id_gets_a_suggestion(capsys):
+    from drem_maniskill.rl.__main__ import main
+
+    assert main(["train-policy", "--task", "PegInHoel-v1"]) == 2
+    assert "Did you mean PegInHole-v1" in capsys.readouterr().err

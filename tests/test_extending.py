@@ -15,13 +15,12 @@ from stable_baselines3 import TD3
 
 import drem_maniskill.drem.checkpoint as checkpoints
 import drem_maniskill.envs as envs
-from drem_maniskill.drem.model import DREMModel, ModelConfig
 from drem_maniskill.experts import get_policy, rollout
 from drem_maniskill.rl import RLConfig
 from drem_maniskill.rl.algos import ALGOS, AlgoSpec, algo_spec, policy_kwargs
 from drem_maniskill.rl.rewards import REWARDS, RewardSpec, env_reward_mode, reward_spec
 from drem_maniskill.rl.run_env import make_env
-from drem_maniskill.version import __version__
+from tests.conftest import tiny_checkpoint
 
 NEW_TASK = "WidePegInHole-v1"
 TASK_FILE = '''
@@ -37,19 +36,6 @@ class WidePegInHoleEnv(PegInHoleEnv):
     env_id = "WidePegInHole-v1"
     default_clearance = 0.004
 '''
-
-
-def tiny_checkpoint(path, env_id: str) -> str:
-    """An untrained DREM checkpoint (both cameras and F/T) for one of our tasks."""
-    torch.manual_seed(0)
-    config = ModelConfig(image_size=64, image_dim=8, latent_dim=16, channels=(4,) * 6)
-    model = DREMModel(config)
-    header = dict(env_id=env_id, env_kwargs={}, modalities=list(config.modalities), camera_uids=["fixed_camera", "wrist_camera"],
-                  image_size=config.image_size, ft_history=config.ft_history, render_style="lean", model=config.to_dict(),
-                  train={}, sampler={}, package_version=__version__)
-    weights = {f"model.{k}": v for k, v in model.state_dict().items()}
-    weights["h_start"], weights["h_goal"] = torch.randn(16), torch.randn(16)
-    return checkpoints.save_checkpoint(str(path), header, weights)
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +103,11 @@ def build_td3(config, venv):
 
 
 def test_adding_an_algorithm(tmp_path, monkeypatch):
-    from drem_maniskill.rl.train_policy import latest_checkpoint, read_eval_csv, train_policy
+    from drem_maniskill.rl.train_policy import (
+        latest_checkpoint,
+        read_eval_csv,
+        train_policy,
+    )
 
     with pytest.raises(ValueError, match="unknown algorithm 'td3'; choose one of: sac"):
         algo_spec("td3")

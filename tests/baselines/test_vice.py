@@ -1,4 +1,4 @@
-"""Baseline rewards: engineered (-exp(kappa d)) and VICE-RAQ (success classifier)."""
+"""VICE-RAQ: the success classifier, active queries, checkpoints, the wrapper on a task."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 
-from drem_maniskill.baselines import DEFAULT_KAPPA, engineered_reward, pose_distance
 from drem_maniskill.baselines.vice import (
     VICEClassifier,
     VICEConfig,
@@ -23,63 +22,6 @@ from tests.conftest import TASKS, make_env
 CAMS = ("fixed_camera", "wrist_camera")
 
 
-# ---------------------------------------------------------------------------- engineered
-def test_engineered_formula():
-    d = torch.tensor([0.0, 0.05, 0.1])
-    r = engineered_reward(d, kappa=10.0)
-    assert torch.allclose(r, -torch.exp(10.0 * d))
-    assert float(r[0]) == -1.0 and bool((r[1:] < r[:-1]).all())
-    goal = torch.tensor([[0.0, 0.0, -0.04]])
-    pos = torch.tensor([[0.03, 0.0, -0.04], [0.0, 0.0, -0.04]])
-    dist = pose_distance(pos, goal, torch.tensor([0.0, 0.2]), rot_weight=0.1)
-    assert torch.allclose(dist, torch.tensor([0.03, 0.02]))
-
-
-def _expert_rewards(env, seed=0):
-    policy = get_policy("expert", env)
-    obs, _ = env.reset(seed=seed)
-    rewards, infos = [], []
-    for _ in range(50):
-        obs, r, _, truncated, info = env.step(policy(obs))
-        rewards.append(float(r[0]))
-        infos.append(info)
-        if bool(info["success"].any()) or bool(truncated.any()):
-            break
-    return rewards, infos
-
-
-@pytest.mark.parametrize("task", TASKS)
-def test_engineered_reward_grows_towards_the_inserted_pose(task):
-    env = make_env(task, obs_mode="state", reward_mode="engineered")
-    assert env.unwrapped.engineered_kappa == DEFAULT_KAPPA
-    rewards, infos = _expert_rewards(env)
-    assert bool(infos[-1]["success"].all())
-    assert rewards[-1] > rewards[0]
-    assert all(r <= -1.0 for r in rewards)  # -1 only at the fully-inserted pose
-    u = env.unwrapped
-    # Recompute from the env's evaluation: the formula, with d to the bottom of the hole.
-    info = u.evaluate()
-    goal = torch.tensor([[0.0, 0.0, -u.hole_depth]])
-    d = pose_distance(info["tip_in_socket"], goal, torch.sqrt(info["tilt_error"] ** 2 + info["yaw_error"] ** 2))
-    r = u.compute_engineered_reward(obs=None, action=None, info=info)
-    assert torch.allclose(r, -torch.exp(DEFAULT_KAPPA * d))
-    # At the goal itself the reward is exactly its maximum.
-    at_goal = dict(info, tip_in_socket=goal.clone(), tilt_error=torch.zeros(1), yaw_error=torch.zeros(1))
-    assert float(u.compute_engineered_reward(obs=None, action=None, info=at_goal)[0]) == -1.0
-
-
-def test_engineered_kappa_is_an_env_kwarg():
-    task = TASKS[0]
-    a = make_env(task, obs_mode="state", reward_mode="engineered")
-    b = make_env(task, obs_mode="state", reward_mode="engineered", engineered_kappa=20.0)
-    ra, _ = _expert_rewards(a, seed=3)
-    rb, _ = _expert_rewards(b, seed=3)
-    # -exp(20 d) = -(exp(10 d))^2: the same distances, the reward squared in magnitude.
-    assert np.allclose(rb[0], -(ra[0] ** 2), rtol=1e-3)
-    assert rb[0] < ra[0]
-
-
-# ---------------------------------------------------------------------------- VICE, synthetic
 class FakeCameraEnv(gym.Env):
     """Two 16 px "cameras": success states show a bright square, others dark noise. No physics."""
 
@@ -185,7 +127,6 @@ def test_vice_state_dict_round_trip(tmp_path):
         VICERewardWrapper(env, goals, tiny_config(image_size=32)).load_state_dict(w.state_dict())
 
 
-# ---------------------------------------------------------------------------- VICE on a task
 def test_vice_wrapper_on_a_task():
     task = TASKS[0]
     env = make_env(task, obs_mode="rgb", reward_mode="dense")
@@ -208,7 +149,7 @@ def test_vice_wrapper_on_a_task():
 def test_goal_examples_from_the_shipped_expert_demo():
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "tasks" / TASKS[1] / "expert.h5"
+    path = Path(__file__).resolve().parents[2] / "tasks" / TASKS[1] / "expert.h5"
     goals = goal_examples_from_h5(str(path))
     assert goals["wrist_camera"].shape[0] == 1 and goals["wrist_camera"].shape[-1] == 3
     x = preprocess(goals, CAMS, 64)

@@ -8,6 +8,7 @@ import torch.nn.functional as F
 
 from drem_maniskill.drem.model import DREMModel, ModelConfig
 from drem_maniskill.drem.reward import DREMReward, default_checkpoint
+from drem_maniskill.envs import TASKS
 
 ATOL = 1e-4
 
@@ -27,7 +28,7 @@ def _random_reward(seed: int = 0, **config) -> DREMReward:
     return DREMReward({"model": model.config.to_dict()}, weights)
 
 
-@pytest.fixture(scope="module", params=["PegInHole-v1", "USBInsertion-v1"])
+@pytest.fixture(scope="module", params=TASKS)
 def shipped(request):
     return DREMReward.from_checkpoint(str(default_checkpoint(request.param)))
 
@@ -38,7 +39,7 @@ def test_fast_path_matches_model_encode_on_shipped_checkpoints(shipped, batch, p
     inputs = _random_batch(batch, px, seed=batch * 1000 + px)
     with torch.no_grad():
         straight = shipped.model.encode(shipped.model.prepare(inputs))
-        fast = shipped._fast().encode(inputs)  # the fast encoder, whatever the batch size
+        fast = shipped.fast_encoder().encode(inputs)  # the fast encoder, whatever the batch size
     torch.testing.assert_close(fast, straight, atol=ATOL, rtol=1e-4)
     reward = shipped(inputs)
     torch.testing.assert_close(reward, shipped.forward_reference(inputs), atol=ATOL, rtol=0)
@@ -81,7 +82,7 @@ def test_fast_path_matches_model_encode_for_other_configs(config, batch):
         inputs = _random_batch(batch, px, seed=px + batch, cameras=cfg.cameras, ft_history=cfg.ft_history)
         with torch.no_grad():
             straight = reward.model.encode(reward.model.prepare(inputs))
-            fast = reward._fast().encode(inputs)
+            fast = reward.fast_encoder().encode(inputs)
         torch.testing.assert_close(fast, straight, atol=ATOL, rtol=1e-4)
         torch.testing.assert_close(reward(inputs), reward.forward_reference(inputs), atol=ATOL, rtol=0)
 
@@ -90,11 +91,11 @@ def test_inputs_the_fast_path_does_not_take_use_the_model(shipped):
     # 96 px (no integer factor), 32 px (upsampling) and float images go through model.prepare.
     for px in (96, 32):
         inputs = _random_batch(1, px, seed=px)
-        assert shipped._fast().encode(inputs) is None
+        assert shipped.fast_encoder().encode(inputs) is None
         torch.testing.assert_close(shipped(inputs), shipped.forward_reference(inputs), atol=ATOL, rtol=0)
     inputs = _random_batch(1, 64, seed=1)
     floats = {c: inputs[c].float() / 255.0 for c in ("fixed", "wrist")} | {"ft": inputs["ft"]}
-    assert shipped._fast().encode(floats) is None
+    assert shipped.fast_encoder().encode(floats) is None
     torch.testing.assert_close(shipped(floats), shipped(inputs), atol=ATOL, rtol=0)
 
 

@@ -1,12 +1,9 @@
-"""The triplet loss's two cases and the cosine distance, on hand-computed examples."""
-
-import math
+"""DREM's triplet loss (Section III-B.3)."""
 
 import pytest
 import torch
 
 from drem_maniskill.pipeline.losses import triplet_loss
-from drem_maniskill.drem.model import cosine_distance
 
 
 def t(*values):
@@ -50,22 +47,3 @@ def test_pair_order_does_not_matter_and_batches():
 def test_custom_hyper_parameters():
     assert triplet_loss(t(0.9), t(0.6), t(0), t(10), eps=20.0, beta2=0.5).item() == 0.0
     assert triplet_loss(t(0.9), t(0.6), t(0), t(10), beta1=0.1).item() == pytest.approx(0.7)
-
-
-def test_cosine_distance():
-    a = torch.tensor([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0]])
-    g = torch.tensor([[3.0, 0.0]])
-    torch.testing.assert_close(cosine_distance(a, g), torch.tensor([0.0, 1.0, 1 - 1 / math.sqrt(2)]))
-    assert cosine_distance(-g, g).item() == pytest.approx(2.0)
-
-
-def test_pooled_spearman_uses_every_step_and_skips_constant_signals():
-    from drem_maniskill.pipeline.examine import _pooled_spearman
-
-    eps = [dict(rewards=[0.1, 0.2, 0.3], normalized_dense=[1.0, 2.0, 4.0]),
-           dict(rewards=[0.5, 0.4], normalized_dense=[5.0, 4.5])]
-    assert _pooled_spearman(eps, "normalized_dense") == pytest.approx(1.0)
-    eps[1]["normalized_dense"] = [0.0, 9.0]  # one pair now runs against the rest
-    assert _pooled_spearman(eps, "normalized_dense") < 1.0
-    assert _pooled_spearman([dict(rewards=[1, 2, 3], insertion_depth=[0, 0, 0])], "insertion_depth") is None
-    assert _pooled_spearman([dict(rewards=[1, 2, 3])], "insertion_depth") is None

@@ -9,24 +9,9 @@ import torch
 import drem_maniskill  # noqa: F401  (registers the ids)
 from drem_maniskill import register_drem_env
 from drem_maniskill.envs.aliases import drem_env_id
+from tests.conftest import tiny_stock_checkpoint
 
 STOCK = "PegInsertionSide-v1"
-
-
-def tiny_stock_checkpoint(path, env_id: str = STOCK) -> str:
-    """An untrained image-only DREM checkpoint for a stock task (its base and hand cameras)."""
-    from drem_maniskill.drem.checkpoint import save_checkpoint
-    from drem_maniskill.drem.model import DREMModel, ModelConfig
-
-    torch.manual_seed(0)
-    config = ModelConfig(modalities=("fixed", "wrist"), image_size=64, image_dim=8, latent_dim=16, channels=(4,) * 6)
-    model = DREMModel(config)
-    header = dict(env_id=env_id, env_kwargs={}, modalities=list(config.modalities), camera_uids=["base_camera", "hand_camera"],
-                  image_size=config.image_size, ft_history=config.ft_history, render_style="lean", model=config.to_dict(),
-                  train={}, sampler={}, package_version=drem_maniskill.__version__)
-    weights = {f"model.{k}": v for k, v in model.state_dict().items()}
-    weights["h_start"], weights["h_goal"] = torch.randn(16), torch.randn(16)
-    return save_checkpoint(str(path), header, weights)
 
 
 def test_drem_env_id_puts_drem_before_the_version():
@@ -116,7 +101,11 @@ def test_register_drem_env_rejects_what_does_not_fit(tmp_path):
     with pytest.raises(ValueError, match="not a registered ManiSkill env id"):
         register_drem_env("NoSuchTask-v1", ckpt)
     # A checkpoint that needs a camera the env lacks fails at gym.make, not at the first step.
-    from drem_maniskill.drem.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+    from drem_maniskill.drem.checkpoint import (
+        CheckpointError,
+        load_checkpoint,
+        save_checkpoint,
+    )
 
     header, weights = load_checkpoint(ckpt)
     bad = save_checkpoint(str(tmp_path / "bad.pt"), {**header, "camera_uids": ["base_camera", "no_such_camera"]}, weights)

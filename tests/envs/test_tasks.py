@@ -1,4 +1,4 @@
-"""Behaviour of PegInHole-v1 and USBInsertion-v1: spaces, rewards, determinism, state, F/T, success."""
+"""Behaviour of our tasks (envs.TASKS): spaces, rewards, determinism, state, F/T, success, physics."""
 
 from __future__ import annotations
 
@@ -53,23 +53,11 @@ def test_reward_modes(task):
 @pytest.mark.parametrize("task", TASKS)
 def test_dense_reward_rises_along_the_expert(task):
     env = make_env(task, obs_mode="state_dict", reward_mode="normalized_dense")
-    from drem_maniskill.experts import get_policy
+    from drem_maniskill.experts import get_policy, rollout
 
-    policy = get_policy("expert", env)
-    obs, _ = env.reset(seed=2)
-    rewards = []
-    for _ in range(50):
-        obs, r, _, _, info = env.step(policy(obs))
-        rewards.append(r.item())
-        if info["success"].item():
-            break
+    rewards = rollout(env, get_policy("expert", env), seed=2).rewards
     assert rewards[-1] == 1.0
     assert rewards[-1] > rewards[len(rewards) // 2] > rewards[0]
-
-
-def test_unknown_reward_mode_is_a_clear_error():
-    with pytest.raises(ValueError, match=r"Unknown reward_mode 'dreamy'.*normalized_dense"):
-        gym.make("PegInHole-v1", reward_mode="dreamy")
 
 
 @pytest.mark.parametrize("clearance", [0.0, -0.001, float("nan"), 0.5, "wide"])
@@ -256,13 +244,6 @@ def test_start_region_and_success(task):
     assert torch.allclose(rel[:3], torch.tensor(u.part_in_hand.p), atol=1e-3)
 
 
-@pytest.mark.parametrize("task", TASKS)
-def test_expert_succeeds_on_a_few_seeds(task):
-    env = make_env(task, obs_mode="state_dict")
-    wins = sum(run_policy(env, "expert", seed=100 + s)[1]["success"].item() for s in range(5))
-    assert wins >= 5 - (1 if task == "USBInsertion-v1" else 0)
-
-
 def test_part_is_held_firmly_while_scraping_over_the_socket():
     env = make_env("PegInHole-v1", obs_mode="state_dict")
     u = env.unwrapped
@@ -287,9 +268,12 @@ def test_usb_enters_only_one_way_up():
         if flipped:
             # Turn the receptacle by half a turn; the policy aims for either orientation.
             pose = u.socket.pose
-            from drem_maniskill.envs.insertion_base import _yaw_quat
-            from mani_skill.utils.geometry.rotation_conversions import quaternion_multiply
+            from mani_skill.utils.geometry.rotation_conversions import (
+                quaternion_multiply,
+            )
             from mani_skill.utils.structs import Pose
+
+            from drem_maniskill.envs.insertion_base import _yaw_quat
 
             u.socket.set_pose(Pose.create_from_pq(pose.p, quaternion_multiply(_yaw_quat(torch.tensor([math.pi])), pose.q)))
             u.yaw_symmetry = 2

@@ -1,0 +1,34 @@
+"""record_expert: ManiSkill's RecordEpisode files, with video."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+
+import drem_maniskill  # noqa: F401
+
+
+def test_record_expert_on_a_stock_task_with_video(tmp_path):
+    """record-expert on PlugCharger-v1: a successful observation + state demo and a video.
+
+    ``RecordEpisode(info_on_video=True)`` crashes with numpy 2.4 in ManiSkill 3.0.1; the recorder
+    keeps it off, so a video of a stock task is written all the same.
+    """
+    from drem_maniskill.experts.recording import record_expert
+
+    rec = record_expert("PlugCharger-v1", str(tmp_path), seeds=[0], save_video=True)
+    assert rec.success == [True] and rec.lengths[0] < 100
+    meta = json.loads((tmp_path / "expert.json").read_text())
+    assert meta["env_info"]["env_id"] == "PlugCharger-v1"
+    assert meta["env_info"]["env_kwargs"]["control_mode"] == "pd_ee_delta_pose"
+    with h5py.File(rec.h5_path, "r") as f:
+        traj = f["traj_0"]
+        steps = traj["actions"].shape[0]
+        assert steps == rec.lengths[0] and traj["actions"].shape[1] == 7
+        for cam in ("base_camera", "hand_camera"):
+            rgb = traj["obs"]["sensor_data"][cam]["rgb"]
+            assert rgb.shape == (steps + 1, 128, 128, 3) and rgb.dtype == np.uint8
+        assert "env_states" in traj and traj["success"][-1]
+    assert sorted(p.name for p in tmp_path.glob("*.mp4")) == ["0.mp4"]

@@ -1,0 +1,74 @@
+"""Backward sampling into a task progress tree: structure, clear failure and resume, the shipped demos."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import h5py
+import numpy as np
+import pytest
+
+from drem_maniskill.envs import TASKS
+from drem_maniskill.pipeline.sampling import (
+    NoStartRegionError,
+    SamplerConfig,
+    backward_sample,
+)
+
+
+@pytest.mark.slow
+def test_progress_tree_structure(pipeline):
+    with h5py.File(pipeline["tree"], "r") as f:
+        depth, parent = f["depth"][()], f["parent"][()]
+        assert f.attrs["complete"]
+        n = len(depth)
+        assert f["fixed_rgb"].shape == (n, 128, 128, 3) and f["fixed_rgb"].dtype == np.uint8
+        assert f["ft"].shape == (n, 8, 6) and f["ft"].dtype == np.float32
+        assert f["tcp_pose"].shape == (n, 7)
+        assert depth[0] == 0 and parent[0] == -1
+        # Every child hangs under a seed of the previous depth.
+        assert np.all(parent[1:] < np.arange(1, n))
+        assert np.all(depth[parent[1:]] == depth[1:] - 1)
+        assert np.all(f["is_seed"][()][parent[1:]])
+        # M children per seed, one seed per depth (N = 1).
+        counts = np.bincount(depth)
+        assert np.all(counts[1:] == SamplerConfig.preset("tiny").num_children)
+        # It stopped because the last seed reached the start region.
+        last_seed = np.nonzero(f["is_seed"][()])[0][-1]
+        assert f["in_start_region"][last_seed] and depth[last_seed] == depth.max()
+        assert not f["in_start_region"][0]
+
+
+@pytest.mark.slow
+def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path):
+    out = tmp_path / "tree.h5"
+    with pytest.raises(NoStartRegionError, match="max_depth=3"):
+        backward_sample(pipeline["expert"], str(out), SamplerConfig.preset("tiny", max_depth=3), progress=False)
+    partial = out.with_name(out.name + ".partial")
+    with h5py.File(partial, "r") as f:
+        assert f.attrs["completed_depth"] == 3
+    # The interrupted run resumes from depth 3; with max_depth raised it completes like a fresh run.
+    backward_sample(pipeline["expert"], str(out), SamplerConfig.preset("tiny", max_depth=3 + 37), progress=False)
+    assert not partial.exists()
+    with h5py.File(out, "r") as a, h5py.File(pipeline["tree"], "r") as b:
+        np.testing.assert_array_equal(a["depth"][()], b["depth"][()])
+        np.testing.assert_allclose(a["tcp_pose"][()], b["tcp_pose"][()], atol=1e-4)
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_shipped_expert_demos_reach_the_goal(task):
+    from pathlib import Path
+
+    from drem_maniskill.pipeline.sampling import load_expert
+    from drem_maniskill.utils.state import broadcast_state, state_at
+
+    expert = load_expert(str(Path(__file__).parents[2] / "tasks" / task / "expert.h5"))
+    assert expert.env_id == task and expert.episode_seed == 1000 and expert.length > 5
+    env = gym.make(task, obs_mode="state_dict")
+    try:
+        env.reset(seed=expert.episode_seed)
+        env.unwrapped.set_state_dict(broadcast_state(state_at(expert.states, 0), 1))
+        assert env.unwrapped.in_start_region().item()
+        env.unwrapped.set_state_dict(broadcast_state(state_at(expert.states, expert.length - 1), 1))
+        assert env.unwrapped.evaluate()["success"].item()
+    finally:
+        env.close()

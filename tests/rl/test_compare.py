@@ -1,0 +1,72 @@
+"""Learning curves compared: steps to a level, the plot and table, the comparison script."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from drem_maniskill.rl.compare import compare_runs, steps_to_reach
+from drem_maniskill.rl.train_policy import (
+    EVAL_COLUMNS,
+    read_eval_csv,
+)
+
+
+def test_steps_to_reach_is_the_first_evaluation_at_the_level():
+    assert steps_to_reach([0, 1000, 2000, 3000], [0.0, 0.2, 0.6, 1.0]) == 2000
+    assert steps_to_reach([0, 1000, 2000], [0.0, 0.5, 0.4]) == 1000
+    assert steps_to_reach([0, 1000], [0.0, 0.4]) is None
+    assert steps_to_reach([0, 1000], [0.5, 0.9]) == 0
+
+
+def _fake_run(root, task, reward, seed, curve, every=1000):
+    run = root / f"{task}-{reward}-{seed}"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps(dict(task=task, reward=reward, seed=seed)))
+    with (run / "eval.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(EVAL_COLUMNS)
+        for i, s in enumerate(curve):
+            w.writerow([i * every, s, 0.0, float(i)])
+    return run
+
+
+def test_compare_two_fake_runs(tmp_path):
+    runs = [_fake_run(tmp_path, "PegInHole-v1", "drem", 0, [0.0, 0.2, 0.6, 1.0]),
+            _fake_run(tmp_path, "PegInHole-v1", "drem", 1, [0.0, 0.4, 0.8, 1.0]),
+            _fake_run(tmp_path, "PegInHole-v1", "sparse", 0, [0.0, 0.0, 0.1, 0.2]),
+            _fake_run(tmp_path, "USBInsertion-v1", "drem", 0, [0.0, 0.5, 0.5, 0.5])]
+    result = compare_runs(runs, str(tmp_path / "cmp"))
+    assert (tmp_path / "cmp" / "comparison.png").stat().st_size > 10_000
+    rows = {(r["task"], r["reward"]): r for r in json.loads((tmp_path / "cmp" / "comparison.json").read_text())["rows"]}
+    # Mean of the two drem seeds: 0, 0.3, 0.7, 1.0: first at or above 0.5 at step 2000.
+    assert rows[("PegInHole-v1", "drem")]["steps_to_50"] == 2000
+    assert rows[("PegInHole-v1", "drem")]["seeds"] == 2
+    assert rows[("PegInHole-v1", "sparse")]["steps_to_50"] == "not reached"
+    assert rows[("PegInHole-v1", "sparse")]["final_success"] == pytest.approx(0.2)
+    assert rows[("USBInsertion-v1", "drem")]["steps_to_50"] == 1000
+    assert "not reached" in open(result["markdown"]).read()
+
+
+@pytest.mark.slow
+def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
+    """scripts/sac_comparison.sh (the one command behind docs/results.md), at a tiny scale."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, OUT=str(tmp_path), EVAL_EVERY="8", EVAL_EPISODES="1", LEARNING_STARTS="8",
+               PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
+    proc = subprocess.run(["bash", str(root / "scripts" / "sac_comparison.sh"), "PegInHole-v1", "16", "0", "sparse", "engineered"],
+                          env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "done sparse 0" in proc.stdout and "done engineered 0" in proc.stdout
+    for reward in ("sparse", "engineered"):
+        assert [r["steps"] for r in read_eval_csv(tmp_path / "PegInHole-v1" / reward / "seed0" / "eval.csv")] == [0, 8, 16]
+    summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
+    assert {row["reward"] for row in summary["rows"]} == {"sparse", "engineered"}
+    assert (tmp_path / "comparison-PegInHole-v1" / "comparison.png").stat().st_size > 10_000

@@ -1,0 +1,63 @@
+"""The RL reward table: names, missing checkpoints, ManiSkill's own tasks."""
+
+from __future__ import annotations
+
+import pytest
+
+from drem_maniskill.rl import REWARDS, RLConfig, reward_spec
+
+
+def test_unknown_reward_is_a_clear_error(capsys):
+    with pytest.raises(ValueError) as err:
+        reward_spec("shaped")
+    for name in REWARDS:
+        assert name in str(err.value)
+    assert "'shaped'" in str(err.value)
+    from drem_maniskill.rl.__main__ import main
+
+    assert main(["train-policy", "--reward", "shaped", "--steps", "8"]) == 2
+    assert "unknown reward 'shaped'; choose one of: sparse, dense" in capsys.readouterr().err
+
+
+def test_missing_image_only_checkpoint_names_the_file(tmp_path, monkeypatch):
+    import drem_maniskill.drem.checkpoint as checkpoints
+
+    monkeypatch.setattr(checkpoints, "default_checkpoint", lambda task, image_only=False: tmp_path / task / "drem_image.pt")
+    with pytest.raises(FileNotFoundError, match=r"drem_image\.pt.*train-reward .*--modalities fixed wrist"):
+        REWARDS["drem-image"].make("PegInHole-v1", {})
+
+
+def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
+    """PlugCharger-v1 (ManiSkill's, no F/T, sparse only): its two cameras and state; drem through the wrapper."""
+    from pathlib import Path
+
+    import torch
+
+    import drem_maniskill.drem.checkpoint as checkpoints
+    from drem_maniskill.rl.run_env import make_env
+    from tests.conftest import tiny_stock_checkpoint
+
+    ckpt = Path(tiny_stock_checkpoint(tmp_path / "drem.pt", env_id="PlugCharger-v1"))
+    monkeypatch.setattr(checkpoints, "default_checkpoint", lambda task, image_only=False: ckpt if task == "PlugCharger-v1" else None)
+    sparse = RLConfig.preset("light", task="PlugCharger-v1", reward="sparse")
+    assert not sparse.uses_ft
+    env, vice = make_env(sparse, for_eval=True)
+    try:
+        assert vice is None
+        obs, _ = env.reset(seed=0)
+        assert set(obs) == {"base_camera", "hand_camera", "state"}
+        assert obs["base_camera"].shape == (1, 3, 32, 32) and obs["base_camera"].dtype == torch.uint8
+        assert obs["state"].shape == (1, 9 + 7)  # qpos + tcp pose
+        _, r, *_ = env.step(torch.zeros(1, 7))
+        assert float(r[0]) == 0.0
+    finally:
+        env.close()
+    env, _ = make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="drem"), for_eval=True)
+    try:
+        env.reset(seed=0)
+        _, r, _, _, info = env.step(torch.zeros(1, 7))
+        assert float(info["original_reward"][0]) == 0.0 and float(r[0]) != 0.0
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match=r"PlugCharger-v1 the rewards are \['sparse', 'drem'\].*'engineered'"):
+        make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="engineered"))

@@ -1,0 +1,62 @@
+"""train-policy: a tiny run, its files, interruption and resume (VICE included)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from drem_maniskill.rl import RLConfig
+from drem_maniskill.rl.train_policy import (
+    EVAL_COLUMNS,
+    latest_checkpoint,
+    read_eval_csv,
+)
+
+
+def _tiny(tmp_path, reward="dense", **kw) -> RLConfig:
+    return RLConfig.preset("light", task="PegInHole-v1", reward=reward, seed=0, steps=64, learning_starts=16, batch_size=16,
+                           eval_every=32, eval_episodes=2, threads=1, out=str(tmp_path / "run"), **kw)
+
+
+@pytest.mark.slow
+def test_train_policy_tiny_writes_eval_csv_and_checkpoint(tmp_path):
+    from drem_maniskill.rl.train_policy import train_policy
+
+    result = train_policy(_tiny(tmp_path))
+    run = tmp_path / "run"
+    with (run / "eval.csv").open() as f:
+        assert next(csv.reader(f)) == list(EVAL_COLUMNS)
+    assert [r["steps"] for r in read_eval_csv(run / "eval.csv")] == [0, 32, 64]
+    ckpt = latest_checkpoint(run)
+    assert ckpt.name == "step_64" and (ckpt / "model.zip").exists() and (ckpt / "replay_buffer.pkl").exists()
+    assert json.loads((ckpt / "progress.json").read_text())["num_timesteps"] == 64
+    assert RLConfig.load(run / "config.json") == _tiny(tmp_path)
+    assert list((run / "tb").glob("events.out.tfevents.*"))
+    assert result["steps"] == 64 and result["resumed_from"] == 0
+
+
+@pytest.mark.slow
+def test_interrupted_run_resumes_from_its_checkpoint(tmp_path):
+    """Interrupt after the step-32 checkpoint (VICE, so its state is checkpointed too); rerun continues from 32."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from drem_maniskill.rl.train_policy import train_policy
+
+    class Interrupt(BaseCallback):
+        def _on_step(self):
+            if self.num_timesteps >= 40:
+                raise KeyboardInterrupt
+            return True
+
+    config = _tiny(tmp_path, reward="vice",
+                   reward_kwargs=dict(update_every=16, train_steps=2, batch_size=8, buffer_size=256, goal_seeds=1))
+    with pytest.raises(KeyboardInterrupt):
+        train_policy(config, callbacks=[Interrupt()])
+    assert latest_checkpoint(tmp_path / "run").name == "step_32"
+    assert (latest_checkpoint(tmp_path / "run") / "vice.pt").exists()
+    result = train_policy(config)
+    assert result["resumed_from"] == 32 and result["steps"] == 64
+    assert [r["steps"] for r in read_eval_csv(tmp_path / "run" / "eval.csv")] == [0, 32, 64]
+    assert (tmp_path / "run" / "sb3" / "from32" / "progress.csv").exists()
