@@ -73,9 +73,9 @@ class HoldGripperController(BaseController):
 @dataclass
 class HoldGripperControllerConfig(ControllerConfig):
     target: float = -0.005
-    """Finger target. The part does not collide with the fingers, so they close fully (inside
-    the part's volume); resting them on its surface would change the images the shipped reward
-    checkpoints were trained on, so it waits for a retraining."""
+    """Finger joint target: the held part's ``finger_target`` (its surface). Fingers and part do not
+    collide (one rigid hand), so the target alone decides where the fingers rest; -0.005 (fully
+    closed) only for a robot loaded without a part."""
     stiffness: float = 1e3
     damping: float = 1e2
     force_limit: float = 20.0
@@ -98,6 +98,7 @@ class HeldPart:
 
     pose_in_hand: sapien.Pose
     add_shapes: Callable  # add_shapes(link_builder, env_index): adds collision and visual shapes
+    finger_target: Optional[float] = None  # finger joint position that rests on the part's surface
     name: str = "held_part"
 
 
@@ -116,6 +117,8 @@ class PandaInsertion(Panda):
         # insertion forces (millimetres at 30-60 N in PhysX), a fixed link does not.
         self.urdf_path = lean_urdf_path() if type(self).render_style == "lean" else str(FULL_URDF)
         part = type(self).held_part
+        # Kept here: the controllers are made now and again whenever the control mode changes.
+        self.finger_target = part.finger_target if part is not None and part.finger_target is not None else None
 
         def build(scene_idxs):
             loader = self.scene.create_urdf_loader()
@@ -158,6 +161,8 @@ class PandaInsertion(Panda):
     def _controller_configs(self):
         configs = super()._controller_configs
         hold = HoldGripperControllerConfig(self.gripper_joint_names)
+        if getattr(self, "finger_target", None) is not None:
+            hold.target = self.finger_target
         out = {}
         for mode, cfg in configs.items():
             arm = deepcopy(cfg["arm"])

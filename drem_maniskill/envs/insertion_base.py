@@ -93,6 +93,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
     start_yaw_range = np.deg2rad(10)
     start_height_range = (0.045, 0.07)  # tip above the socket's top face
     start_region_height = 0.03  # tip higher than this above the socket top: "start region"
+    color_range = (0.05, 0.95)  # part and socket RGB, uniform per channel (randomize_colors)
     success_depth_fraction = 0.8
 
     ft_link = "panda_hand"
@@ -189,7 +190,8 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             self._add_part_shapes(link_builder, self._part_materials[env_index or 0])
 
         PandaInsertion.render_style = self.render_style
-        PandaInsertion.held_part = HeldPart(self.part_in_hand, add_part_shapes)
+        # The fingers rest on the part's surface, as in a real grasp, from the first observation on.
+        PandaInsertion.held_part = HeldPart(self.part_in_hand, add_part_shapes, finger_target=self.grip_half_width)
         try:
             super()._load_agent(options, sapien.Pose(), build_separate=True)
         finally:
@@ -269,12 +271,26 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             self.agent.robot.set_qvel(torch.zeros_like(qpos))
 
             if self.randomize_colors:
-                # Reset-time only (not a hot path): one material per sub-scene.
-                colors = rng.uniform(0.05, 0.95, size=(6,))
-                for k, i in enumerate(env_idx.tolist()):
-                    self._part_materials[i].base_color = [*colors[k, :3], 1.0]
-                    self._socket_materials[i].base_color = [*colors[k, 3:], 1.0]
+                self.set_colors(rng.uniform(*self.color_range, size=(6,)), env_idx)
             self.ft.reset(env_idx)
+
+    def set_colors(self, colors, env_idx=None) -> None:
+        """Part and socket colours ``[b, 6]`` (part RGB, socket RGB, in [0, 1]) of envs ``env_idx`` (default: all).
+
+        Colours are render materials, not physics: no state holds them, and changing them does
+        not change what the next step does (the backward sampler recolours restored states).
+        """
+        # Not a hot path (resets, sampling): one material per sub-scene.
+        colors = np.asarray(torch.as_tensor(colors).cpu(), dtype=np.float64).reshape(-1, 6)
+        envs = range(self.num_envs) if env_idx is None else torch.as_tensor(env_idx).tolist()
+        for k, i in enumerate(envs):
+            self._part_materials[i].base_color = [*colors[k, :3], 1.0]
+            self._socket_materials[i].base_color = [*colors[k, 3:], 1.0]
+
+    def get_colors(self) -> torch.Tensor:
+        """Part and socket colours ``[num_envs, 6]``."""
+        rows = [[*p.base_color[:3], *s.base_color[:3]] for p, s in zip(self._part_materials, self._socket_materials)]
+        return torch.tensor(rows, dtype=torch.float32)
 
     def _solve_ik(self, tcp_target: Pose, env_idx: torch.Tensor) -> torch.Tensor:
         """Full robot qpos ``[b, dof]`` that puts the TCP at ``tcp_target`` (robot base = world)."""

@@ -258,6 +258,24 @@ def test_part_is_held_firmly_while_scraping_over_the_socket():
         assert not info["success"].item()
 
 
+@pytest.mark.parametrize("task", TASKS)
+def test_fingers_rest_on_the_part_from_the_first_observation(task):
+    """The fingers stand on the part's surface (not inside it) at reset and stay there, in contact too.
+
+    The finger joint is the distance of each finger's pad from the hand's axis; the part is
+    ``grip_half_width`` from the axis where the fingers hold it.
+    """
+    env = make_env(task, obs_mode="state_dict")
+    u = env.unwrapped
+    obs, _ = env.reset(seed=4)
+    width = u.grip_half_width
+    fingers = lambda q: q[0, u._finger_idx]  # noqa: E731
+    assert torch.allclose(fingers(obs["agent"]["qpos"]), torch.full((2,), width), atol=1e-4)
+    assert u.agent.controller.controllers["gripper"].config.target == width
+    _, info, _ = run_policy(env, "search_fail", seed=4, stop_on_success=False)  # scrapes over the socket
+    assert torch.allclose(fingers(u.agent.robot.get_qpos()), torch.full((2,), width), atol=5e-4)
+
+
 def test_usb_enters_only_one_way_up():
     """The expert, told the plug is symmetric under a half turn, aligns it flipped: blocked."""
     env = make_env("USBInsertion-v1", obs_mode="state_dict")
