@@ -50,11 +50,15 @@ def _cmd_sample(args) -> None:
 
     overrides = {k: v for k, v in dict(num_children=args.num_children, num_seeds=args.num_seeds, delta=args.delta,
                                        max_depth=args.max_depth, action_scale=args.action_scale, seed=args.seed,
-                                       episode=args.episode, workers=args.workers).items() if v is not None}
+                                       episode=args.episode, workers=args.workers, expert_step_scale=args.expert_step_scale,
+                                       randomize_colors=args.randomize_colors).items() if v is not None}
     config = SamplerConfig.preset(args.preset, **overrides)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
+    from drem_maniskill.pipeline.dataset import tree_report
+
     print(f"progress tree: {path}")
+    print(f"regions around the opening: {json.dumps(tree_report(path))}")
 
 
 def _cmd_train_reward(args) -> None:
@@ -79,9 +83,11 @@ def _cmd_examine(args) -> None:
     from drem_maniskill.pipeline.examine import examine
 
     result = examine(args.task, args.checkpoint, seeds=range(args.seed, args.seed + args.episodes), out_dir=args.out)
-    keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss", "success_rate",
-            "spearman_with_normalized_dense", "spearman_with_insertion_depth", "spearman_with_normalized_dense_expert")
-    print(json.dumps({k: result[k] for k in keys}, indent=2))
+    keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss",
+            "search_fail_first_contact_loss", "contact_plateau", "colour_spread", "held_positions", "inserted_reward_std",
+            "success_rate", "spearman_with_normalized_dense", "spearman_with_insertion_depth",
+            "spearman_with_normalized_dense_expert")
+    print(json.dumps({k: result.get(k) for k in keys}, indent=2))
     print(f"plot: {args.out}/examination.png, numbers: {args.out}/quality.json")
 
 
@@ -145,6 +151,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--delta", type=float, help="stop when N*delta seeds are in the start region")
     p.add_argument("--max-depth", type=int, help="give up past this depth")
     p.add_argument("--action-scale", type=float, help="random actions uniform in [-s, s]")
+    p.add_argument("--expert-step-scale", type=float,
+                   help="actions at each depth span this many times the expert's step there (0: the paper's fixed range)")
+    p.add_argument("--randomize-colors", action=argparse.BooleanOptionalAction, default=None,
+                   help="fresh part and socket colours per child (default: on)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")

@@ -116,7 +116,9 @@ def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: 
         )
         if not drem:
             continue
-        tree = backward_sample(result.h5_path, str(folder / "tree.h5"), SamplerConfig.preset(sc["sampler"], seed=seed))
+        # Children follow the expert's step, as for the shipped checkpoints (docs/drem.md).
+        tree = backward_sample(result.h5_path, str(folder / "tree.h5"),
+                               SamplerConfig.preset(sc["sampler"], seed=seed, expert_step_scale=4.0))
         config = TrainConfig.preset(sc["train"], iterations=sc["iterations"])
         checkpoint = train_reward(tree, str(folder / "reward"), config)
         # Held-out seeds: after the recorded ones.

@@ -10,5 +10,5 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 tasks=("$@")
 [ ${#tasks[@]} -gt 0 ] || tasks=(PegInsertionSide-v1 PlugCharger-v1)
-export M=${M:-100} IMAGE_BASELINE=0 OMP_WAIT_POLICY=PASSIVE
+export M=${M:-100} ITERS=${ITERS:-2000} STEP_SCALE=${STEP_SCALE:-0} IMAGE_BASELINE=0 OMP_WAIT_POLICY=PASSIVE
 exec bash scripts/train_default_rewards.sh "${tasks[@]}"

@@ -69,6 +69,23 @@ class EnvAdapter:
         images = camera_images(self.env, obs, self.camera_map.values())
         return {m: images[uid] for m, uid in self.camera_map.items()}
 
+    @property
+    def colorable(self) -> bool:
+        """Whether the env's part and socket colours can be set (our tasks; not part of any state)."""
+        return hasattr(self.env, "set_colors")
+
+    def set_colors(self, colors) -> None:
+        """Part and socket colours ``[num_envs, 6]`` (our tasks only)."""
+        self.env.set_colors(colors)
+
+    def colors(self) -> Optional[torch.Tensor]:
+        """Part and socket colours ``[num_envs, 6]``, or None on an env without them."""
+        return self.env.get_colors() if self.colorable else None
+
+    def tip_in_socket(self) -> Optional[torch.Tensor]:
+        """The part tip's position in the socket frame ``[B, 3]`` (our tasks; for reports on the tree), else None."""
+        return self.env.tip_pose_in_socket().p if isinstance(self.env, InsertionEnv) else None
+
     def ft(self) -> Optional[torch.Tensor]:
         """Wrist F/T history ``[B, H, 6]``, or None without our sensor."""
         return self.env.ft.buffer if self.has_ft else None

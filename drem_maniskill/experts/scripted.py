@@ -112,10 +112,22 @@ class ScriptedPolicy:
 
 
 class ExpertPolicy(ScriptedPolicy):
-    """Centre above the opening, correct yaw, then descend along the axis to the bottom."""
+    """Centre above the opening, correct yaw, then descend along the axis to the bottom.
+
+    It slows down near the opening, as a careful demonstrator does: the last centimetre of the
+    approach at ``fine_speed`` and the first ``fine_depth`` of the insertion ``fine_step`` at a
+    time. The backward sampler walks the demo back step by step, so these slow steps are what
+    give the progress tree depths that tell hovering above the opening, touching its rim and
+    being in it apart (docs/drem.md).
+    """
 
     pre_height = 0.006
     centred = 0.0006
+    descent_step = 0.005  # m the tip is sent down per step once aligned and past fine_depth
+    fine_step = 0.002  # m per step while entering the opening
+    fine_depth = 0.006  # m below the top face the entry ends
+    fine_radius = 0.01  # m from the pre-insertion point the approach slows to fine_speed
+    fine_speed = 0.15  # of the action range: 3 mm per step
 
     def act(self) -> torch.Tensor:
         tip, yaw, _ = self.state()
@@ -124,8 +136,14 @@ class ExpertPolicy(ScriptedPolicy):
         # Once aligned above the hole (or already inside it), go down; never back up.
         self.phase = torch.where(aligned | (tip[:, 2] < 0), torch.ones_like(self.phase), self.phase)
         target = torch.zeros_like(tip)
-        target[:, 2] = torch.where(self.phase == 1, tip[:, 2] - 0.005, torch.full_like(tip[:, 2], self.pre_height))
-        return self.move(target, speed=0.5)
+        step = torch.where(tip[:, 2] > -self.fine_depth, torch.full_like(tip[:, 2], self.fine_step),
+                           torch.full_like(tip[:, 2], self.descent_step))
+        target[:, 2] = torch.where(self.phase == 1, tip[:, 2] - step, torch.full_like(tip[:, 2], self.pre_height))
+        action = self.move(target, speed=0.5)
+        # The last centimetre of the approach at fine_speed (per env: move() takes one speed).
+        slow = (self.phase == 0) & ((tip - target).norm(dim=1) < self.fine_radius)
+        action[:, :3] = torch.where(slow[:, None], action[:, :3].clamp(-self.fine_speed, self.fine_speed), action[:, :3])
+        return action
 
 
 class AlignSuccessPolicy(ScriptedPolicy):
@@ -180,6 +198,23 @@ class SearchFailPolicy(AlignSuccessPolicy):
         target[away, :2] = tip[away, :2] + 0.006 * direction[away]
         target[away, 2] = torch.where(self.phase[away] == 1, -PRESS_DEPTH, tip[away, 2] - 0.004)
         return self.move(target, speed=0.5)
+
+
+class HoldPolicy(ScriptedPolicy):
+    """Move the tip to ``target`` (socket frame, ``[3]`` or ``[B, 3]``) and hold it there, upright.
+
+    Not an examination policy of the paper: the reward examination uses it to read the reward
+    with the tip held at the same places in every episode (colour spread, alignment, contact).
+    A target below the socket's top face off the opening presses the part on the face.
+    """
+
+    def __init__(self, env, target, seed: int = 0, speed: float = 0.5):
+        super().__init__(env, seed)
+        self.target = torch.as_tensor(target, dtype=torch.float32, device=self.device).expand(self.n, 3).clone()
+        self.speed = speed
+
+    def act(self) -> torch.Tensor:
+        return self.move(self.target, speed=self.speed)
 
 
 class RandomPolicy(ScriptedPolicy):

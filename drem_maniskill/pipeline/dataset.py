@@ -101,3 +101,42 @@ class TreeDataset:
         choice = torch.multinomial(allowed.float(), 1, generator=gen).flatten()
         second = torch.stack([self.by_depth[int(d)][torch.randint(len(self.by_depth[int(d)]), (1,), generator=gen)][0] for d in depths[choice]])
         return first, second
+
+
+# Regions of the tip around the opening (socket frame, metres), for ``tree_report``.
+NEAR_HEIGHT = 0.006  # above the opening: the expert's pre-insertion height
+CENTRED = 0.002  # off the axis: "a millimetre or two"
+
+
+def tree_report(path: str, contact_force: float = 3.0) -> dict:
+    """Where the tree's nodes are around the opening, and at which depths (our tasks' trees; they hold ``tip_in_socket``).
+
+    Regions: ``inserted`` (tip more than 1 mm below the top face), ``above, centred`` (up to
+    6 mm above it, within 2 mm of the axis), ``above, off-centre`` (the same height, 2-10 mm off),
+    ``in contact, not inserted`` (wrist force over ``contact_force`` with the tip not below
+    1 mm: pressed on the face or the rim), ``far`` (the rest). A tree resolves progress near the
+    opening when these hold nodes at depths that grow with their distance from the goal.
+    """
+    with h5py.File(path, "r") as f:
+        if "tip_in_socket" not in f:
+            return {}
+        tip, depth = f["tip_in_socket"][()], f["depth"][()]
+        force = np.abs(f["ft"][:, -1, 2])
+    radial, z = np.linalg.norm(tip[:, :2], axis=1), tip[:, 2]
+    inserted = z < -0.001
+    contact = (force > contact_force) & ~inserted
+    near = (z >= 0) & (z <= NEAR_HEIGHT)
+    regions = {
+        "inserted": inserted,
+        "above, centred": near & (radial <= CENTRED) & ~contact,
+        "above, off-centre": near & (radial > CENTRED) & (radial <= 0.01) & ~contact,
+        "in contact, not inserted": contact,
+    }
+    regions["far"] = ~np.any(np.stack(list(regions.values())), axis=0)
+    out = {}
+    for name, mask in regions.items():
+        d = depth[mask]
+        out[name] = dict(nodes=int(mask.sum()), depth_mean=float(d.mean()) if len(d) else None,
+                         depth_min=int(d.min()) if len(d) else None, depth_max=int(d.max()) if len(d) else None)
+    out["tree_depth"] = int(depth.max())
+    return out

@@ -44,7 +44,8 @@ from drem_maniskill.envs.adapter import adapter_for
 from drem_maniskill.utils.cameras import camera_roles
 from drem_maniskill.utils.state import broadcast_state, first_leaf, state_at
 
-DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "depth", "parent", "in_start_region", "is_seed")
+DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "colors", "tip_in_socket", "depth", "parent", "in_start_region",
+                "is_seed")
 
 
 @dataclass
@@ -60,6 +61,11 @@ class SamplerConfig:
     max_depth: int = 80
     action_scale: float = 1.0
     """Random arm actions are uniform in [-action_scale, action_scale] (normalised action space); gripper ones always in [-1, 1]."""
+    expert_step_scale: float = 0.0
+    """When > 0, the arm actions at each depth span this many times the expert's own step there (its end-effector
+    move between the states d and d + 1 before the goal), clipped to [min_action_scale, action_scale]: fine where
+    the expert moves slowly (near the opening), the whole range where it moves fast. 0: the paper's fixed range."""
+    min_action_scale: float = 0.05
     rotation_weight: float = 0.05
     """Metres per radian when comparing end-effector poses with the expert's."""
     seed: int = 0
@@ -71,6 +77,9 @@ class SamplerConfig:
     """Metres per metre of finger opening when comparing with the expert (robots with a gripper)."""
     start_radius: float = 0.03
     """Envs without a start-region predicate: within this distance of the expert's first TCP position."""
+    randomize_colors: bool = True
+    """Each child gets freshly drawn part and socket colours (tasks that have them; recorded in ``colors``), as the
+    paper's sampling does and every reset of the task does: the image encoder must not learn one colour pair."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -196,16 +205,40 @@ class ChildSampler:
         """Start-region flags ``[num_envs]`` of the current states."""
         return self.adapter.in_start_region(self.expert_first_ee, self.start_radius)
 
-    def children(self, seed_state: dict, actions: np.ndarray) -> dict:
-        """Apply each action from ``seed_state``; returns observations, start flags and states."""
-        out = {k: [] for k in ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "ee", "in_start_region", "state")}
+    @property
+    def translation_limit(self) -> float:
+        """Metres of end-effector travel a full-scale arm action asks for (the controller's ``pos_upper``)."""
+        arm = getattr(self.unwrapped.agent.controller, "controllers", {}).get("arm")
+        limit = getattr(getattr(arm, "config", None), "pos_upper", None)
+        return float(np.max(limit)) if limit is not None else 1.0
+
+    def random_colors(self, rng: np.random.Generator, count: int) -> Optional[np.ndarray]:
+        """``count`` part and socket colours ``[count, 6]`` drawn as the task's resets draw them, or None without colours."""
+        if not self.adapter.colorable:
+            return None
+        return rng.uniform(*self.unwrapped.color_range, size=(count, 6))
+
+    def children(self, seed_state: dict, actions: np.ndarray, colors: Optional[np.ndarray] = None) -> dict:
+        """Apply each action from ``seed_state`` (each child in its row of ``colors``); observations, start flags, states."""
+        out = {k: [] for k in ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "ee", "in_start_region", "state", "colors",
+                               "tip_in_socket")}
         for start in range(0, len(actions), self.n):
             chunk = torch.as_tensor(actions[start : start + self.n], dtype=torch.float32)
             k = len(chunk)
             if k < self.n:
                 chunk = torch.cat([chunk, chunk.new_zeros(self.n - k, chunk.shape[1])])
             self.adapter.set_state(broadcast_state(seed_state, self.n))
+            if colors is not None:
+                rows = np.asarray(colors[start : start + self.n])
+                # Colours are not state: the restored step replays the same whatever they are.
+                self.adapter.set_colors(np.concatenate([rows, np.repeat(rows[-1:], self.n - k, 0)]))
             obs, *_ = self.env.step(chunk)
+            rendered = self.adapter.colors()  # what the images show, drawn here or not
+            if rendered is not None:
+                out["colors"].append(rendered[:k].numpy())
+            tip = self.adapter.tip_in_socket()
+            if tip is not None:
+                out["tip_in_socket"].append(tip[:k].cpu().numpy())
             for m, image in self.adapter.images(obs).items():
                 out[f"{m}_rgb"].append(image[:k].cpu().numpy())
             ft = self.adapter.ft()
@@ -241,8 +274,8 @@ def _worker_init(env_id, env_kwargs, episode_seed, expert_first_ee, start_radius
 
 
 def _worker_children(args):
-    flat_state, actions = args
-    return _WORKER.children(_WORKER.adapter.unflatten(flat_state), actions)
+    flat_state, actions, colors = args
+    return _WORKER.children(_WORKER.adapter.unflatten(flat_state), actions, colors)
 
 
 def pose_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_weight: float = 0.0) -> np.ndarray:
@@ -257,6 +290,16 @@ def pose_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_
     if gripper_weight and a.shape[-1] > 7 and b.shape[-1] > 7:
         dist = dist + gripper_weight * np.abs(a[..., 7] - b[..., 7])
     return dist
+
+
+def action_scale_at(depth: int, expert_ee: np.ndarray, config: SamplerConfig, translation_limit: float) -> float:
+    """The arm action range for the children of depth ``depth`` (``SamplerConfig.expert_step_scale``)."""
+    if config.expert_step_scale <= 0:
+        return config.action_scale
+    goal = len(expert_ee) - 1
+    a, b = max(goal - depth, 0), max(goal - depth - 1, 0)
+    step = float(np.linalg.norm(expert_ee[a, :3] - expert_ee[b, :3]))
+    return float(np.clip(config.expert_step_scale * step / translation_limit, config.min_action_scale, config.action_scale))
 
 
 # ---------------------------------------------------------------------------- the tree
@@ -304,13 +347,18 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             # The random stream is a function of the depth, so a resumed run draws the same actions.
             rng = np.random.default_rng([config.seed, depth])
             children = []
+            # Colours from a stream of their own: turning them off leaves the actions as they were.
+            color_rng = np.random.default_rng([config.seed, depth, 1])
+            scale = action_scale_at(depth, expert_ee, config, sampler.translation_limit)
             for seed, node in zip(seeds, seed_nodes):
-                actions = sampler.random_actions(rng, config.num_children, config.action_scale)
+                actions = sampler.random_actions(rng, config.num_children, scale)
+                colors = sampler.random_colors(color_rng, config.num_children) if config.randomize_colors else None
                 if pool is None:
-                    res = sampler.children(sampler.adapter.unflatten(seed["state"]), actions)
+                    res = sampler.children(sampler.adapter.unflatten(seed["state"]), actions, colors)
                 else:
-                    parts = np.array_split(actions, config.workers)
-                    outs = pool.map(_worker_children, [(seed["state"], p) for p in parts if len(p)])
+                    parts = np.array_split(np.arange(len(actions)), config.workers)
+                    outs = pool.map(_worker_children, [(seed["state"], actions[p], None if colors is None else colors[p])
+                                                       for p in parts if len(p)])
                     res = {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
                 res["parent"] = np.full(len(actions), node)
                 children.append(res)
@@ -361,6 +409,12 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
     flat = sampler.adapter.flatten(sampler.adapter.get_state())[:1].cpu().numpy()
     in_region = bool(sampler.in_start_region()[0])
     root = {f"{m}_rgb": expert.last_obs[f"{m}_rgb"][None] for m in expert.camera_map}
+    colors = sampler.adapter.colors()  # the expert episode's, from its seed
+    if colors is not None:
+        root["colors"] = colors[:1].numpy()
+    tip = sampler.adapter.tip_in_socket()
+    if tip is not None:
+        root["tip_in_socket"] = tip[:1].cpu().numpy()
     root.update(
         ft=expert.last_obs.get("ft", np.zeros((8, 6), np.float32))[None], tcp_pose=expert_ee[-1:, :7],
         in_start_region=np.array([in_region]), state=flat, parent=np.array([-1]),
@@ -388,6 +442,9 @@ def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray) -> lis
     is_seed = np.zeros(n, bool)
     is_seed[chosen] = True
     rows = {k: data[k].astype(np.uint8) for k in ("fixed_rgb", "wrist_rgb") if k in data}
+    for key in ("colors", "tip_in_socket"):
+        if key in data:
+            rows[key] = data[key].astype(np.float32)
     rows.update(
         ft=data["ft"].astype(np.float32), tcp_pose=data["tcp_pose"].astype(np.float32),
         depth=np.full(n, depth, np.int32), parent=data["parent"].astype(np.int64),

@@ -7,8 +7,9 @@ import h5py
 import numpy as np
 import pytest
 
-from drem_maniskill.envs import TASKS
+from drem_maniskill.envs import TASKS, PegInHoleEnv
 from drem_maniskill.pipeline.sampling import (
+    ChildSampler,
     NoStartRegionError,
     SamplerConfig,
     backward_sample,
@@ -52,6 +53,33 @@ def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path):
     with h5py.File(out, "r") as a, h5py.File(pipeline["tree"], "r") as b:
         np.testing.assert_array_equal(a["depth"][()], b["depth"][()])
         np.testing.assert_allclose(a["tcp_pose"][()], b["tcp_pose"][()], atol=1e-4)
+        np.testing.assert_array_equal(a["colors"][()], b["colors"][()])
+
+
+@pytest.mark.slow
+def test_each_child_gets_its_own_colours_which_do_not_change_its_step(pipeline):
+    """The image branch must see the colour randomisation every reset applies; colours are not physics."""
+    with h5py.File(pipeline["tree"], "r") as f:
+        colors, depth = f["colors"][()], f["depth"][()]
+    assert colors.shape == (len(depth), 6)
+    children = colors[depth == 1]
+    assert len(np.unique(children.round(6), axis=0)) == len(children) > 1
+    lo, hi = PegInHoleEnv.color_range
+    assert colors.min() >= lo and colors.max() <= hi
+    sampler = ChildSampler("PegInHole-v1", {}, episode_seed=5)
+    try:
+        # The root is the expert's episode, in that episode's colours.
+        np.testing.assert_allclose(colors[0], sampler.adapter.colors()[0].numpy(), atol=1e-6)
+        seed_state = sampler.adapter.get_state()
+        actions = sampler.random_actions(np.random.default_rng(0), 2, 1.0)
+        a = sampler.children(seed_state, actions, sampler.random_colors(np.random.default_rng(1), 2))
+        b = sampler.children(seed_state, actions, sampler.random_colors(np.random.default_rng(2), 2))
+        for key in ("state", "tcp_pose", "ft"):
+            np.testing.assert_array_equal(a[key], b[key])  # the same step, whatever the colours
+        assert not np.allclose(a["colors"], b["colors"])
+        assert np.abs(a["fixed_rgb"].astype(int) - b["fixed_rgb"].astype(int)).mean() > 1.0
+    finally:
+        sampler.close()
 
 
 @pytest.mark.parametrize("task", TASKS)
@@ -72,3 +100,19 @@ def test_shipped_expert_demos_reach_the_goal(task):
         assert env.unwrapped.evaluate()["success"].item()
     finally:
         env.close()
+
+
+def test_actions_follow_the_experts_step_when_asked():
+    """expert_step_scale: the action range at depth d is k times the expert's step there, within the bounds."""
+    from drem_maniskill.pipeline.sampling import action_scale_at
+
+    # An expert that moves 1 cm per step, then 2 mm per step over its last three steps.
+    x = np.array([0.0, 0.01, 0.02, 0.03, 0.032, 0.034, 0.036])
+    ee = np.zeros((len(x), 8))
+    ee[:, 2] = x
+    config = SamplerConfig(expert_step_scale=2.0, min_action_scale=0.05, action_scale=1.0)
+    # Depth 0 -> 1: the expert's last step (2 mm) at 2 cm per full action: 2 x 0.1 = 0.2.
+    assert action_scale_at(0, ee, config, 0.02) == pytest.approx(0.2)
+    assert action_scale_at(3, ee, config, 0.02) == pytest.approx(1.0)  # 2 x 1 cm = 2 cm: the whole range
+    assert action_scale_at(40, ee, config, 0.02) == pytest.approx(0.05)  # past the demo's start: no step, the floor
+    assert action_scale_at(0, ee, SamplerConfig(action_scale=0.7), 0.02) == 0.7  # off: the fixed range
