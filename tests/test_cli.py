@@ -41,6 +41,13 @@ def test_chain_record_sample_train_examine(tmp_path):
     assert quality["success_rate"]["direct_success"] == 1.0
     assert -1 <= quality["spearman_with_normalized_dense"] <= 1 and -1 <= quality["spearman_with_insertion_depth"] <= 1
     assert len(quality["dense_curves"]["random"][0]) == len(quality["curves"]["random"][0])
+    from drem_maniskill.pipeline.examine import HOLD_POSITIONS
+
+    held = quality["held_positions"]
+    assert list(held) == [*HOLD_POSITIONS, "inserted"]
+    assert all(v["reached_error_mm"] < 2.0 for k, v in held.items() if k != "inserted" and "beside" not in k)
+    assert quality["colour_spread"]["max_std"] == max(v["std"] for k, v in held.items() if k != "inserted")
+    assert set(quality["contact_plateau"]) == {"episodes", "mean_reward", "direct_success_final", "fraction"}
     assert (tmp_path / "exam" / "examination.png").stat().st_size > 10_000
 
 

@@ -6,6 +6,11 @@
   Search Fail and Random; the AUROC of the final-step reward separating successful from failed
   episodes; the Random policy's mean reward (target < 0.2); the reward just before and just
   after Search Fail loses contact.
+* **The plateau, the drop, the colours** (our tasks): Align Success's reward on the face as a
+  fraction of Direct Success's final one; Search Fail's reward 1 and 3 steps after it first
+  loses contact; the reward with the tip held at fixed places (above the opening, off-centre,
+  pressed beside it, inserted) in every episode's colours, and its spread over the episodes.
+  docs/drem.md, section 5, defines each.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from tqdm import tqdm
 from drem_maniskill.drem.wrapper import DREMRewardWrapper
 from drem_maniskill.envs import is_insertion_task
 from drem_maniskill.experts import ee_control_kwargs, get_policy, rollout
+from drem_maniskill.experts.scripted import CONTACT_FORCE, PRESS_DEPTH, HoldPolicy
 from drem_maniskill.experts.stock import STOCK_EXPERTS
 
 EXAMINATION = ("direct_success", "align_success", "search_fail", "random")
@@ -79,6 +85,82 @@ def _make_env(env_id: str, checkpoint: str, env_kwargs: dict | None):
     return DREMRewardWrapper(gym.make(env_id, obs_mode="state_dict", **ee_control_kwargs(env_id, env_kwargs)), checkpoint)
 
 
+# Where the examination holds the tip (socket frame, metres) to read the reward in every episode's
+# colours: above the opening, off-centre above it, pressed on the face beside it. "inserted" is
+# the expert's finished insertion, held.
+HOLD_POSITIONS = {
+    "60 mm above": (0.0, 0.0, 0.060),
+    "30 mm above": (0.0, 0.0, 0.030),
+    "10 mm above": (0.0, 0.0, 0.010),
+    "4 mm above": (0.0, 0.0, 0.004),
+    "4 mm above, 1 mm off": (0.001, 0.0, 0.004),
+    "4 mm above, 2 mm off": (0.002, 0.0, 0.004),
+    "4 mm above, 4 mm off": (0.004, 0.0, 0.004),
+    "pressed 3 mm beside": (0.003, 0.0, -PRESS_DEPTH),
+}
+HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
+INSERTION_START = 0.001  # m below the top face: the part has started going in
+
+
+def contact_plateau(align: Sequence[dict], direct_final: float, contact: float = CONTACT_FORCE) -> dict:
+    """Align Success's mean reward from its first contact to the start of insertion, over Direct Success's final reward.
+
+    The paper's plateau: touching the face near the opening is progress, but not yet the goal.
+    """
+    plateaus = []
+    for ep in align:
+        force, depth = np.asarray(ep["force"]), np.asarray(ep["insertion_depth"])
+        touched = np.nonzero(force > contact)[0]
+        if not len(touched):
+            continue
+        first = touched[0]
+        inserting = np.nonzero(depth[first:] > INSERTION_START)[0]
+        end = first + (inserting[0] if len(inserting) else len(depth) - first)
+        if end > first:
+            plateaus.append(float(np.mean(ep["rewards"][first:end])))
+    mean = float(np.mean(plateaus)) if plateaus else None
+    return dict(episodes=len(plateaus), mean_reward=mean, direct_success_final=direct_final,
+                fraction=None if mean is None or not direct_final else mean / direct_final)
+
+
+def first_contact_loss(episode: dict, contact: float = CONTACT_FORCE) -> dict | None:
+    """Search Fail's reward 1 and 3 steps after it first loses contact (step 1: the first reading without it)."""
+    f = np.asarray(episode["force"])
+    for t in range(1, len(f)):
+        if f[t - 1] > contact and f[t] < 1.0:
+            r = episode["rewards"]
+            return dict(step=t, before=r[t - 1], after_1=r[t], after_3=r[t + 2] if t + 2 < len(r) else None)
+    return None
+
+
+def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS) -> dict:
+    """The reward with the tip held at each of ``positions`` (and the expert's insertion), per seed.
+
+    Each seed is a reset with the task's colour randomisation, so the spread of one position's
+    rewards across seeds is what colours (and the few tenths of a millimetre the hold misses by)
+    do to the reward: the *colour spread*. Returns ``{position: {"rewards": [...], "mean", "std",
+    "reached_error_mm"}}``.
+    """
+    out = {}
+    for name, target in tqdm(positions.items(), desc="examine: hold positions", unit="position", disable=None):
+        rewards, errors = [], []
+        for seed in seeds:
+            ep = rollout(env, HoldPolicy(env, target), int(seed), steps, stop_on_success=False)
+            rewards.append(ep.rewards[-1])
+            reached = env.unwrapped.tip_pose_in_socket().p[0].cpu().numpy()
+            errors.append(float(np.linalg.norm(reached - np.asarray(target)) * 1000))
+        out[name] = dict(rewards=rewards, mean=float(np.mean(rewards)), std=float(np.std(rewards)),
+                         reached_error_mm=float(np.mean(errors)))
+    rewards = []
+    for seed in seeds:
+        ep = rollout(env, get_policy("expert", env, seed=int(seed)), int(seed), stop_on_success=False)
+        if ep.success:
+            rewards.append(ep.rewards[-1])
+    out["inserted"] = dict(rewards=rewards, mean=float(np.mean(rewards)) if rewards else None,
+                           std=float(np.std(rewards)) if rewards else None, reached_error_mm=None)
+    return out
+
+
 def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float] | None:
     """Reward just before and just after the last fall of the wrist force below ``contact``."""
     f = np.asarray(episode["force"])
@@ -103,12 +185,16 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         expert = [examination_episode(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
         curves = {p: [examination_episode(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
                   for p in policies}
+        held = hold_positions(env, seeds) if is_insertion_task(env_id) else {}
     finally:
         env.close()
     solved = [e for e in expert if e["success"]]
     rho = [spearmanr(np.arange(len(e["rewards"])), e["rewards"]).correlation for e in solved if len(e["rewards"]) > 2]
     finals = [(ep["rewards"][-1], ep["success"]) for eps in curves.values() for ep in eps]
     drops = [d for ep in curves.get("search_fail", []) if (d := contact_loss_drop(ep)) is not None]
+    losses = [d for ep in curves.get("search_fail", []) if (d := first_contact_loss(ep)) is not None]
+    direct = [ep["rewards"][-1] for ep in curves.get("direct_success", []) if ep["success"]]
+    spread = {k: v["std"] for k, v in held.items() if k != "inserted"}
     result = dict(
         env_id=env_id, checkpoint=str(checkpoint), seeds=list(map(int, seeds)),
         value_order_spearman=float(np.nanmean(rho)) if rho else float("nan"),
@@ -121,6 +207,16 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
             before=float(np.mean([d[0] for d in drops])) if drops else None,
             after=float(np.mean([d[1] for d in drops])) if drops else None,
         ),
+        # The paper's plateau, its drop at contact loss, and what colours do (docs/drem.md, "Examination").
+        contact_plateau=contact_plateau(curves.get("align_success", []), float(np.mean(direct)) if direct else None),
+        search_fail_first_contact_loss=dict(
+            episodes_with_loss=len(losses),
+            after_1=float(np.mean([d["after_1"] for d in losses])) if losses else None,
+            after_3=float(np.mean([d["after_3"] for d in losses if d["after_3"] is not None])) if losses else None,
+        ),
+        colour_spread=dict(max_std=max(spread.values()) if spread else None, per_position=spread),
+        held_positions={k: {m: v[m] for m in ("mean", "std", "reached_error_mm")} for k, v in held.items()},
+        inserted_reward_std=held["inserted"]["std"] if held else None,
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],
@@ -151,7 +247,17 @@ def plot_examination(result: dict, path: Path) -> None:
     # Beside DREM, the task's own normalized_dense where it has one (ManiSkill's stock tasks).
     dense = {k: v for k, v in result.get("dense_curves", {}).items() if any(len(r) for r in v)}
     panels = [("curves", "DREM reward")] + ([("dense_curves", "ManiSkill normalized_dense")] if dense else [])
-    fig, axes = plt.subplots(1, len(panels), figsize=(7 * len(panels), 4), squeeze=False)
+    held = {k: v for k, v in result.get("held_positions", {}).items() if v["mean"] is not None}
+    fig, axes = plt.subplots(1, len(panels) + bool(held), figsize=(7 * (len(panels) + bool(held)), 4), squeeze=False)
+    if held:
+        # The reward with the tip held in place, mean and spread over episodes (colours randomised).
+        ax = axes[0, -1]
+        x = np.arange(len(held))
+        ax.bar(x, [v["mean"] for v in held.values()], yerr=[v["std"] for v in held.values()], capsize=3, color="C7")
+        ax.set_xticks(x, list(held), rotation=40, ha="right", fontsize=7)
+        ax.set_ylabel("DREM reward, tip held (mean, std over episodes)")
+        spread = result.get("colour_spread", {}).get("max_std")
+        ax.set_title(f"colour spread: largest std {spread:.3f}" if spread is not None else "held positions")
     for ax, (key, ylabel) in zip(axes[0], panels):
         for i, (name, runs) in enumerate(result[key].items()):
             length = max(len(r) for r in runs)

@@ -13,3 +13,23 @@ def test_pooled_spearman_uses_every_step_and_skips_constant_signals():
     assert _pooled_spearman(eps, "normalized_dense") < 1.0
     assert _pooled_spearman([dict(rewards=[1, 2, 3], insertion_depth=[0, 0, 0])], "insertion_depth") is None
     assert _pooled_spearman([dict(rewards=[1, 2, 3])], "insertion_depth") is None
+
+
+def test_contact_plateau_is_align_successs_reward_between_contact_and_insertion_over_direct_success():
+    from drem_maniskill.pipeline.examine import contact_plateau
+
+    # Contact (force > 3 N) from step 2; the tip goes below 1 mm at step 5.
+    ep = dict(rewards=[0.1, 0.2, 0.5, 0.6, 0.7, 0.9, 1.0], force=[0, 0, 5, 6, 4, 2, 1],
+              insertion_depth=[-0.01, -0.005, 0.0, 0.0, 0.0005, 0.002, 0.01])
+    untouched = dict(rewards=[0.3, 0.3], force=[0, 0], insertion_depth=[-0.01, -0.01])
+    out = contact_plateau([ep, untouched], direct_final=0.9)
+    assert out["episodes"] == 1 and out["mean_reward"] == pytest.approx(0.6) and out["fraction"] == pytest.approx(0.6 / 0.9)
+    assert contact_plateau([untouched], 0.9)["fraction"] is None
+
+
+def test_first_contact_loss_reads_the_reward_one_and_three_steps_after():
+    from drem_maniskill.pipeline.examine import first_contact_loss
+
+    ep = dict(rewards=[0.1, 0.5, 0.6, 0.2, 0.15, 0.05, 0.4, 0.0], force=[0, 4, 5, 0.5, 0.2, 0.1, 6, 0.1])
+    assert first_contact_loss(ep) == dict(step=3, before=0.6, after_1=0.2, after_3=0.05)  # the first loss, not the last
+    assert first_contact_loss(dict(rewards=[0.1, 0.2], force=[0, 0])) is None
