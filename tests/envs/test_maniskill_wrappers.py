@@ -13,6 +13,7 @@ from tests.envs.tooling import (
     FT,
     FT_HISTORY,
     IMG,
+    MOVE,
     PART_POSE,
     QPOS,
     STATE_DIM,
@@ -97,9 +98,8 @@ def test_vector_env_spaces_and_truncation_auto_reset(short_env):
 
     obs, info = vec.reset(seed=0)
     assert obs.shape == (1, STATE_DIM)
-    zero = torch.zeros(1, 6)
     for t in range(1, 4):
-        obs, rew, term, trunc, info = vec.step(zero)
+        obs, rew, term, trunc, info = vec.step(MOVE)
         assert obs.shape == (1, STATE_DIM) and rew.shape == (1,)
         assert term.shape == (1,) and trunc.shape == (1,) and term.dtype == torch.bool
         if t < 3:
@@ -114,7 +114,7 @@ def test_vector_env_spaces_and_truncation_auto_reset(short_env):
     # The returned obs is the new episode's: its F/T history was cleared, the final one was not.
     assert torch.all(obs[:, FT] == 0)
     assert final_obs[:, FT].abs().sum() > 0
-    vec.step(zero)
+    vec.step(MOVE)
     assert int(vec.base_env.elapsed_steps.item()) == 1
 
 
@@ -174,7 +174,7 @@ def test_flatten_rgbd_wrapper_rgb(flat_rgb_env):
     env = flat_rgb_env
     obs, _ = env.reset(seed=0)
     assert set(obs) == {"rgb", "state"}  # depth requested but the rgb obs mode has none
-    obs, *_ = env.step(torch.zeros(1, 6))
+    obs, *_ = env.step(MOVE)
     assert set(obs) == {"rgb", "state"}
     assert obs["rgb"].shape == (1, IMG, IMG, 6) and obs["rgb"].dtype == torch.uint8
     # rgb obs: extra has tcp_pose and ft only -> qpos 9 + qvel 9 + tcp 7 + ft 48

@@ -27,6 +27,9 @@ FT = slice(25, 25 + 6 * FT_HISTORY)
 PART_POSE = slice(73, 80)
 STATE_DIM = 90
 SUBPROCESS_TIMEOUT = 300
+# An accelerating hand: the wrist reads the inertia of what it holds. At rest in free space it
+# reads 0 (gravity is off for robot links, and the fingers rest on the part without squeezing it).
+MOVE = torch.full((1, 6), 0.5)
 
 def make_quiet(obs_mode: str, **kwargs):
     with warnings.catch_warnings():
