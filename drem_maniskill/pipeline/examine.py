@@ -123,14 +123,19 @@ def contact_plateau(align: Sequence[dict], direct_final: float, contact: float =
                 fraction=None if mean is None or not direct_final else mean / direct_final)
 
 
+def contact_losses(episode: dict, contact: float = CONTACT_FORCE) -> np.ndarray:
+    """The steps whose wrist force reads below 1 N right after a step above ``contact``: where contact was lost."""
+    f = np.asarray(episode["force"])
+    return np.nonzero((f[:-1] > contact) & (f[1:] < 1.0))[0] + 1
+
+
 def first_contact_loss(episode: dict, contact: float = CONTACT_FORCE) -> dict | None:
     """Search Fail's reward 1 and 3 steps after it first loses contact (step 1: the first reading without it)."""
-    f = np.asarray(episode["force"])
-    for t in range(1, len(f)):
-        if f[t - 1] > contact and f[t] < 1.0:
-            r = episode["rewards"]
-            return dict(step=t, before=r[t - 1], after_1=r[t], after_3=r[t + 2] if t + 2 < len(r) else None)
-    return None
+    losses = contact_losses(episode, contact)
+    if not len(losses):
+        return None
+    t, r = int(losses[0]), episode["rewards"]
+    return dict(step=t, before=r[t - 1], after_1=r[t], after_3=r[t + 2] if t + 2 < len(r) else None)
 
 
 def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS) -> dict:
@@ -163,11 +168,11 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
 
 def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float] | None:
     """Reward just before and just after the last fall of the wrist force below ``contact``."""
-    f = np.asarray(episode["force"])
-    for t in range(len(f) - 1, 0, -1):
-        if f[t - 1] > contact and f[t] < 1.0:
-            return episode["rewards"][t - 1], episode["rewards"][t]
-    return None
+    losses = contact_losses(episode, contact)
+    if not len(losses):
+        return None
+    t = int(losses[-1])
+    return episode["rewards"][t - 1], episode["rewards"][t]
 
 
 def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_dir: str | None = None,

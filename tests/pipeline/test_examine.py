@@ -33,3 +33,6 @@ def test_first_contact_loss_reads_the_reward_one_and_three_steps_after():
     ep = dict(rewards=[0.1, 0.5, 0.6, 0.2, 0.15, 0.05, 0.4, 0.0], force=[0, 4, 5, 0.5, 0.2, 0.1, 6, 0.1])
     assert first_contact_loss(ep) == dict(step=3, before=0.6, after_1=0.2, after_3=0.05)  # the first loss, not the last
     assert first_contact_loss(dict(rewards=[0.1, 0.2], force=[0, 0])) is None
+    from drem_maniskill.pipeline.examine import contact_loss_drop
+
+    assert contact_loss_drop(ep) == (0.4, 0.0)  # the older measure: the last loss
