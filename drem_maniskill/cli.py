@@ -51,7 +51,8 @@ def _cmd_sample(args) -> None:
     overrides = {k: v for k, v in dict(num_children=args.num_children, num_seeds=args.num_seeds, delta=args.delta,
                                        max_depth=args.max_depth, action_scale=args.action_scale, seed=args.seed,
                                        episode=args.episode, workers=args.workers, expert_step_scale=args.expert_step_scale,
-                                       randomize_colors=args.randomize_colors).items() if v is not None}
+                                       randomize_colors=args.randomize_colors,
+                                       randomize_placement=args.randomize_placement).items() if v is not None}
     config = SamplerConfig.preset(args.preset, **overrides)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
@@ -155,6 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="actions at each depth span this many times the expert's step there (0: the paper's fixed range)")
     p.add_argument("--randomize-colors", action=argparse.BooleanOptionalAction, default=None,
                    help="fresh part and socket colours per child (default: on)")
+    p.add_argument("--randomize-placement", action=argparse.BooleanOptionalAction, default=None,
+                   help="each child's scene moved to a fresh socket placement, robot with it (default: on)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")

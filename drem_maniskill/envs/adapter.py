@@ -82,6 +82,26 @@ class EnvAdapter:
         """Part and socket colours ``[num_envs, 6]``, or None on an env without them."""
         return self.env.get_colors() if self.colorable else None
 
+    @property
+    def placeable(self) -> bool:
+        """Whether the socket (and the robot with it) can be moved as a whole (our tasks)."""
+        return hasattr(self.env, "place_socket")
+
+    def placements(self) -> Optional[torch.Tensor]:
+        """The socket's placement ``[num_envs, 3]`` (x, y, yaw), or None on an env without one."""
+        return self.env.socket_placements() if self.placeable else None
+
+    def place(self, placements) -> None:
+        """Move the socket to ``placements`` ``[num_envs, 3]``, the robot rigidly with it (our tasks only)."""
+        self.env.place_socket(placements)
+
+    def ee_state_at(self, placement=None) -> torch.Tensor:
+        """``ee_state()`` with its pose moved to where it would be with the socket at ``placement`` (None: as it is)."""
+        ee = self.ee_state()
+        if placement is None or not self.placeable:
+            return ee
+        return torch.cat([self.env.pose_at_placement(ee[:, :7], placement), ee[:, 7:]], dim=1)
+
     def tip_in_socket(self) -> Optional[torch.Tensor]:
         """The part tip's position in the socket frame ``[B, 3]`` (our tasks; for reports on the tree), else None."""
         return self.env.tip_pose_in_socket().p if isinstance(self.env, InsertionEnv) else None

@@ -366,6 +366,46 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         )
         return top.inv() * self.part.pose
 
+    # ------------------------------------------------------------------ placement
+    def socket_placements(self) -> torch.Tensor:
+        """The socket's placement ``[num_envs, 3]``: x, y (m, world) and yaw (rad), as resets draw it."""
+        pose = self.socket.pose
+        q = pose.q  # yaw only: wxyz = (cos yaw/2, 0, 0, sin yaw/2)
+        yaw = 2 * torch.atan2(q[:, 3], q[:, 0])
+        return torch.cat([pose.p[:, :2], yaw[:, None]], dim=1)
+
+    def random_socket_placements(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """``count`` placements ``[count, 3]`` drawn as ``_initialize_episode`` draws the socket's."""
+        xy = rng.uniform(-self.socket_xy_range, self.socket_xy_range, size=(count, 2)) + np.asarray(self.socket_center)
+        yaw = rng.uniform(-self.socket_yaw_range, self.socket_yaw_range, size=(count, 1))
+        return np.concatenate([xy, yaw], axis=1)
+
+    def place_socket(self, placements) -> None:
+        """Move the socket to ``placements`` ``[num_envs, 3]`` and the robot (with the held part) rigidly with it.
+
+        Everything relative to the socket stays as it was, so the next step replays the same in
+        the socket's frame (the robot's base moves instead of its joints: the floor and gravity do
+        not care). The backward sampler uses this to show the encoder the socket where every
+        reset may put it, from one demo.
+        """
+        placements = torch.as_tensor(placements, dtype=torch.float32, device=self.device).reshape(self.num_envs, 3)
+        old = self.socket.pose
+        p = old.p.clone()
+        p[:, :2] = placements[:, :2]
+        new = Pose.create_from_pq(p, _yaw_quat(placements[:, 2]))
+        move = new * old.inv()
+        root = self.agent.robot.pose
+        self.socket.set_pose(new)
+        self.agent.robot.set_root_pose(move * root)
+
+    def pose_at_placement(self, raw_pose: torch.Tensor, placement) -> torch.Tensor:
+        """World poses ``[B, 7]`` moved to where they would be with the socket at ``placement`` ``[3]`` (x, y, yaw)."""
+        ref = torch.as_tensor(placement, dtype=torch.float32, device=self.device).reshape(1, 3).expand(self.num_envs, 3)
+        p = self.socket.pose.p.clone()
+        p[:, :2] = ref[:, :2]
+        move = Pose.create_from_pq(p, _yaw_quat(ref[:, 2])) * self.socket.pose.inv()
+        return (move * Pose.create(raw_pose)).raw_pose
+
     def in_start_region(self) -> torch.Tensor:
         """Bool ``[num_envs]``: the part tip is more than ``start_region_height`` above the socket."""
         return self.tip_pose_in_socket().p[:, 2] > self.start_region_height

@@ -44,8 +44,8 @@ from drem_maniskill.envs.adapter import adapter_for
 from drem_maniskill.utils.cameras import camera_roles
 from drem_maniskill.utils.state import broadcast_state, first_leaf, state_at
 
-DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "colors", "tip_in_socket", "depth", "parent", "in_start_region",
-                "is_seed")
+DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "colors", "placement", "tip_in_socket", "depth", "parent",
+                "in_start_region", "is_seed")
 
 
 @dataclass
@@ -80,6 +80,11 @@ class SamplerConfig:
     randomize_colors: bool = True
     """Each child gets freshly drawn part and socket colours (tasks that have them; recorded in ``colors``), as the
     paper's sampling does and every reset of the task does: the image encoder must not learn one colour pair."""
+    randomize_placement: bool = True
+    """Each child's scene is moved as a whole to a freshly drawn socket placement (x, y, yaw, as the task's resets
+    draw it; recorded in ``placement``): the robot moves with the socket, so the step replays the same in the
+    socket's frame. Not in the paper, whose hole stays put; our tasks place the socket anew at every reset, and a
+    tree of one placement teaches a reward that reads where the socket is, not how far the part is from it."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -186,6 +191,9 @@ class ChildSampler:
         # Colours and object poses of the expert's episode come with its seed.
         self.env.reset(seed=episode_seed)
         self.n = self.unwrapped.num_envs
+        # End-effector poses are compared with the expert's as if the socket were where the expert had it.
+        placements = self.adapter.placements()
+        self.reference_placement = None if placements is None else placements[0].clone()
         self.action_dim = int(self.env.action_space.shape[-1])
         self.expert_first_ee = expert_first_ee
         self.start_radius = start_radius
@@ -218,10 +226,21 @@ class ChildSampler:
             return None
         return rng.uniform(*self.unwrapped.color_range, size=(count, 6))
 
-    def children(self, seed_state: dict, actions: np.ndarray, colors: Optional[np.ndarray] = None) -> dict:
-        """Apply each action from ``seed_state`` (each child in its row of ``colors``); observations, start flags, states."""
+    def random_placements(self, rng: np.random.Generator, count: int) -> Optional[np.ndarray]:
+        """``count`` socket placements ``[count, 3]`` drawn as the task's resets draw them, or None where there are none."""
+        if not self.adapter.placeable:
+            return None
+        return self.unwrapped.random_socket_placements(rng, count)
+
+    def children(self, seed_state: dict, actions: np.ndarray, colors: Optional[np.ndarray] = None,
+                 placements: Optional[np.ndarray] = None) -> dict:
+        """Apply each action from ``seed_state`` (each child in its row of ``colors`` and ``placements``); observations, start flags, states.
+
+        ``tcp_pose`` and ``ee`` are given at the expert's socket placement, so that they compare
+        with the expert's whatever placement a child was moved to.
+        """
         out = {k: [] for k in ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "ee", "in_start_region", "state", "colors",
-                               "tip_in_socket")}
+                               "placement", "tip_in_socket")}
         for start in range(0, len(actions), self.n):
             chunk = torch.as_tensor(actions[start : start + self.n], dtype=torch.float32)
             k = len(chunk)
@@ -232,7 +251,13 @@ class ChildSampler:
                 rows = np.asarray(colors[start : start + self.n])
                 # Colours are not state: the restored step replays the same whatever they are.
                 self.adapter.set_colors(np.concatenate([rows, np.repeat(rows[-1:], self.n - k, 0)]))
+            if placements is not None:
+                rows = np.asarray(placements[start : start + self.n])
+                self.adapter.place(np.concatenate([rows, np.repeat(rows[-1:], self.n - k, 0)]))
             obs, *_ = self.env.step(chunk)
+            placed = self.adapter.placements()
+            if placed is not None:
+                out["placement"].append(placed[:k].cpu().numpy())
             rendered = self.adapter.colors()  # what the images show, drawn here or not
             if rendered is not None:
                 out["colors"].append(rendered[:k].numpy())
@@ -243,7 +268,7 @@ class ChildSampler:
                 out[f"{m}_rgb"].append(image[:k].cpu().numpy())
             ft = self.adapter.ft()
             out["ft"].append(ft[:k].cpu().numpy() if ft is not None else np.zeros((k, 8, 6), np.float32))
-            ee = self.adapter.ee_state()[:k].cpu().numpy()
+            ee = self.adapter.ee_state_at(self.reference_placement)[:k].cpu().numpy()
             out["tcp_pose"].append(ee[:, :7])
             out["ee"].append(ee)
             out["in_start_region"].append(self.in_start_region()[:k].cpu().numpy())
@@ -256,7 +281,7 @@ class ChildSampler:
         out = []
         for t in range(length):
             self.adapter.set_state(broadcast_state(state_at(states, t), self.n))
-            out.append(self.adapter.ee_state()[0].cpu().numpy())
+            out.append(self.adapter.ee_state_at(self.reference_placement)[0].cpu().numpy())
         return np.stack(out)
 
     def close(self):
@@ -274,8 +299,8 @@ def _worker_init(env_id, env_kwargs, episode_seed, expert_first_ee, start_radius
 
 
 def _worker_children(args):
-    flat_state, actions, colors = args
-    return _WORKER.children(_WORKER.adapter.unflatten(flat_state), actions, colors)
+    flat_state, actions, colors, placements = args
+    return _WORKER.children(_WORKER.adapter.unflatten(flat_state), actions, colors, placements)
 
 
 def pose_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_weight: float = 0.0) -> np.ndarray:
@@ -349,15 +374,18 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             children = []
             # Colours from a stream of their own: turning them off leaves the actions as they were.
             color_rng = np.random.default_rng([config.seed, depth, 1])
+            place_rng = np.random.default_rng([config.seed, depth, 2])
             scale = action_scale_at(depth, expert_ee, config, sampler.translation_limit)
             for seed, node in zip(seeds, seed_nodes):
                 actions = sampler.random_actions(rng, config.num_children, scale)
                 colors = sampler.random_colors(color_rng, config.num_children) if config.randomize_colors else None
+                places = sampler.random_placements(place_rng, config.num_children) if config.randomize_placement else None
                 if pool is None:
-                    res = sampler.children(sampler.adapter.unflatten(seed["state"]), actions, colors)
+                    res = sampler.children(sampler.adapter.unflatten(seed["state"]), actions, colors, places)
                 else:
                     parts = np.array_split(np.arange(len(actions)), config.workers)
-                    outs = pool.map(_worker_children, [(seed["state"], actions[p], None if colors is None else colors[p])
+                    outs = pool.map(_worker_children, [(seed["state"], actions[p], None if colors is None else colors[p],
+                                                        None if places is None else places[p])
                                                        for p in parts if len(p)])
                     res = {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
                 res["parent"] = np.full(len(actions), node)
@@ -412,6 +440,9 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
     colors = sampler.adapter.colors()  # the expert episode's, from its seed
     if colors is not None:
         root["colors"] = colors[:1].numpy()
+    placements = sampler.adapter.placements()
+    if placements is not None:
+        root["placement"] = placements[:1].cpu().numpy()
     tip = sampler.adapter.tip_in_socket()
     if tip is not None:
         root["tip_in_socket"] = tip[:1].cpu().numpy()
@@ -442,7 +473,7 @@ def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray) -> lis
     is_seed = np.zeros(n, bool)
     is_seed[chosen] = True
     rows = {k: data[k].astype(np.uint8) for k in ("fixed_rgb", "wrist_rgb") if k in data}
-    for key in ("colors", "tip_in_socket"):
+    for key in ("colors", "placement", "tip_in_socket"):
         if key in data:
             rows[key] = data[key].astype(np.float32)
     rows.update(

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from drem_maniskill.envs import TASKS, PegInHoleEnv
+from drem_maniskill.experts.scripted import HoldPolicy
+from drem_maniskill.pipeline.examine import HOLD_POSITIONS
 from drem_maniskill.pipeline.sampling import (
     ChildSampler,
     NoStartRegionError,
@@ -78,6 +80,40 @@ def test_each_child_gets_its_own_colours_which_do_not_change_its_step(pipeline):
             np.testing.assert_array_equal(a[key], b[key])  # the same step, whatever the colours
         assert not np.allclose(a["colors"], b["colors"])
         assert np.abs(a["fixed_rgb"].astype(int) - b["fixed_rgb"].astype(int)).mean() > 1.0
+    finally:
+        sampler.close()
+
+
+@pytest.mark.slow
+def test_each_child_is_moved_to_its_own_socket_placement_which_does_not_change_its_step(pipeline):
+    """Every reset places the socket anew; the tree shows the encoder those placements, the step unchanged."""
+    with h5py.File(pipeline["tree"], "r") as f:
+        placement, depth = f["placement"][()], f["depth"][()]
+    assert placement.shape == (len(depth), 3)
+    children = placement[depth == 1]
+    assert len(np.unique(children.round(6), axis=0)) == len(children) > 1
+    center, r, yaw = np.asarray(PegInHoleEnv.socket_center), PegInHoleEnv.socket_xy_range, PegInHoleEnv.socket_yaw_range
+    assert np.all(np.abs(placement[1:, :2] - center) <= r + 1e-6) and np.all(np.abs(placement[1:, 2]) <= yaw + 1e-6)
+    sampler = ChildSampler("PegInHole-v1", {}, episode_seed=5)
+    try:
+        u = sampler.unwrapped
+        # Pressed on the face beside the opening: contact is where a moved scene would show first.
+        hold = HoldPolicy(u, HOLD_POSITIONS["pressed 3 mm beside"])
+        for _ in range(12):
+            sampler.env.step(hold.act())
+        seed_state = sampler.adapter.get_state()
+        actions = np.array([[0.0, 0.05, -0.8, 0.0, 0.0, 0.1]] * 2)  # press harder, slide and twist
+        a = sampler.children(seed_state, actions, placements=np.array([[0.535, 0.012, 0.2], [0.565, -0.018, -0.25]]))
+        b = sampler.children(seed_state, actions)  # where the seed had it
+        np.testing.assert_allclose(a["placement"], [[0.535, 0.012, 0.2], [0.565, -0.018, -0.25]], atol=1e-5)
+        # The same step in the socket's frame, and the same pose once moved back to the expert's placement.
+        # (A step that slides off the block's edge can differ by a substep: there PhysX is chaotic.)
+        np.testing.assert_allclose(a["tip_in_socket"], b["tip_in_socket"], atol=2e-5)
+        np.testing.assert_allclose(a["tcp_pose"], b["tcp_pose"], atol=1e-4)
+        np.testing.assert_allclose(a["ft"], b["ft"], atol=0.5, rtol=0.02)
+        assert np.abs(b["ft"][:, -1, 2]).max() > 10.0  # pressing on the face
+        assert np.abs(a["fixed_rgb"][0].astype(int) - a["fixed_rgb"][1].astype(int)).mean() > 1.0
+        assert u.socket_placements().shape == (u.num_envs, 3)
     finally:
         sampler.close()
 
