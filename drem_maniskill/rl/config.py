@@ -1,4 +1,4 @@
-"""Configuration of a SAC run (``train-policy``): one dataclass, two presets, saved as JSON in the run dir."""
+"""Configuration of a SAC run (``train-policy``): one dataclass, three presets, saved as JSON in the run dir."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Optional
 
 from drem_maniskill.envs import is_insertion_task
 
-PRESETS = ("light", "paper")
+PRESETS = ("state", "light", "paper")
 
 
 @dataclass
@@ -30,6 +30,8 @@ class RLConfig:
     cameras: tuple = ("fixed_camera", "wrist_camera")
     policy_ft: Optional[bool] = True  # None: the paper's rule, F/T only for the drem reward
     policy_state: bool = True  # qpos (9) + tcp pose (7)
+    policy_qvel: bool = False  # + joint velocities (9)
+    policy_privileged: bool = False  # + the socket's pose (7): the task's object pose, as ManiSkill's state obs
 
     # --- the policy network (SB3 MultiInputPolicy with our extractor)
     cnn_channels: tuple = (16, 32, 32)  # stride-2 convs per camera
@@ -67,11 +69,18 @@ class RLConfig:
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "RLConfig":
-        """The ``light`` (CPU, about an hour) or ``paper`` (GPU) config with ``overrides`` applied."""
+        """The ``state`` (reward studies), ``light`` (images, CPU) or ``paper`` (images, GPU) config with ``overrides``."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose one of {list(PRESETS)}")
         base = dict(preset=name)
-        if name == "paper":
+        if name == "state":
+            # Reward studies: proprioception, the F/T history and the socket's pose, no image (the reward
+            # may still read the cameras: DREM renders its own). Nothing derived from a reward.
+            base.update(
+                cameras=(), policy_ft=True, policy_state=True, policy_qvel=True, policy_privileged=True,
+                steps=50_000, buffer_size=100_000, batch_size=256, learning_starts=1_000, eval_every=2_500,
+            )
+        elif name == "paper":
             # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
             # a policy CNN like the reward encoder's (6 stride-2 layers at 128 px); 150k steps.
             base.update(
@@ -92,6 +101,11 @@ class RLConfig:
             setattr(self, key, tuple(getattr(self, key)))
         if 128 % self.image_size:
             raise ValueError(f"image_size must divide the 128 px render (8, 16, 32, 64, 128), got {self.image_size}")
+
+    @property
+    def uses_images(self) -> bool:
+        """Whether the policy sees any camera (if not, the env runs in ``state_dict`` obs mode and renders nothing for it)."""
+        return len(self.cameras) > 0
 
     @property
     def uses_ft(self) -> bool:

@@ -1,4 +1,4 @@
-"""The policy's observation: ManiSkill's rgb observation as SB3 wants it (channel-first uint8 cameras, F/T, state)."""
+"""The policy's observation: ManiSkill's observation as SB3 wants it (channel-first uint8 cameras, F/T, state)."""
 
 from __future__ import annotations
 
@@ -14,14 +14,29 @@ def symlog(x: torch.Tensor) -> torch.Tensor:
     return torch.sign(x) * torch.log1p(x.abs())
 
 
+def state_parts(qvel: bool = False, privileged: bool = False) -> tuple:
+    """The ``(group, key)`` pairs of ManiSkill's obs dict that make the policy's ``state`` vector, in order.
+
+    Never ``tip_in_socket`` or anything else the rewards are computed from: a policy that saw the
+    engineered reward's input would make the comparison of rewards unfair.
+    """
+    parts = [("agent", "qpos")] + ([("agent", "qvel")] if qvel else []) + [("extra", "tcp_pose")]
+    return tuple(parts + ([("extra", "socket_pose")] if privileged else []))
+
+
 class PolicyObservation(gym.ObservationWrapper):
-    """ManiSkill rgb obs -> the policy's dict: uint8 ``[B, 3, S, S]`` per camera, ``ft`` ``[B, 8, 6]``, ``state``."""
+    """ManiSkill obs -> the policy's dict: uint8 ``[B, 3, S, S]`` per camera, ``ft`` ``[B, 8, 6]``, ``state``."""
 
     def __init__(self, env: gym.Env, image_size: int, cameras=("fixed_camera", "wrist_camera"), ft: bool = True,
-                 state: bool = True):
+                 state: bool = True, state_keys: tuple = state_parts()):
         super().__init__(env)
         self.image_size, self.cameras, self.use_ft, self.use_state = int(image_size), tuple(cameras), ft, state
         src = env.unwrapped.single_observation_space
+        missing = [f"{g}/{k}" for g, k in state_keys if k not in src[g].spaces] if state else []
+        if missing:
+            raise ValueError(f"the policy's state needs {missing}, which {env.unwrapped.spec.id} does not observe "
+                             f"(obs_mode={env.unwrapped.obs_mode!r})")
+        self.state_keys = tuple(state_keys)
         single = {}
         for uid in self.cameras:
             # Channel-first uint8: SB3 then sees an image space and scales it by 1/255 without transposing.
@@ -29,7 +44,7 @@ class PolicyObservation(gym.ObservationWrapper):
         if ft:
             single["ft"] = spaces.Box(-np.inf, np.inf, src["extra"]["ft"].shape, np.float32)
         if state:
-            n = src["agent"]["qpos"].shape[0] + src["extra"]["tcp_pose"].shape[0]
+            n = sum(src[g][k].shape[0] for g, k in self.state_keys)
             single["state"] = spaces.Box(-np.inf, np.inf, (n,), np.float32)
         self.single_observation_space = spaces.Dict(single)
         b = env.unwrapped.num_envs
@@ -50,5 +65,5 @@ class PolicyObservation(gym.ObservationWrapper):
         if self.use_ft:
             out["ft"] = symlog(obs["extra"]["ft"].float())
         if self.use_state:
-            out["state"] = torch.cat([obs["agent"]["qpos"], obs["extra"]["tcp_pose"]], dim=-1).float()
+            out["state"] = torch.cat([obs[g][k].float() for g, k in self.state_keys], dim=-1)
         return out

@@ -8,13 +8,17 @@ import gymnasium as gym
 
 from drem_maniskill.envs import check_env_id, is_insertion_task
 from drem_maniskill.experts import ee_control_kwargs
-from drem_maniskill.rl.observation import PolicyObservation
+from drem_maniskill.rl.observation import PolicyObservation, state_parts
 from drem_maniskill.rl.rewards import reward_spec, supported_rewards
 from drem_maniskill.utils.cameras import camera_roles, env_cameras
 
 
 def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eval: bool = False):
-    """``(env, learned_reward_or_None)`` of an ``RLConfig``: rgb obs rendered at 128 px, the named reward.
+    """``(env, learned_reward_or_None)`` of an ``RLConfig``: the policy's obs (see below), the named reward.
+
+    With cameras (presets ``light``, ``paper``) the env's obs mode is ``rgb``, rendered at 128 px;
+    without (``state``) it is ``state_dict`` and nothing is rendered for the policy (a reward that
+    reads images, DREM or VICE-RAQ, renders its own cameras).
 
     A learned reward (VICE-RAQ) wraps the training env and is returned beside it, restored from
     ``learned_state`` when resuming; an evaluation env (``for_eval``, one env) is rewarded by the
@@ -27,15 +31,22 @@ def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eva
     if not spec.supports(task):
         raise ValueError(f"on ManiSkill's own {task} the rewards are {supported_rewards(task)} "
                          f"(drem: rewards/{task}/drem.pt), not {config.reward!r}")
-    kwargs = dict(obs_mode="rgb", sim_backend=config.sim_backend, **ee_control_kwargs(task, config.env_kwargs))
+    obs_mode = "rgb" if config.uses_images else "state_dict"
+    kwargs = dict(obs_mode=obs_mode, sim_backend=config.sim_backend, **ee_control_kwargs(task, config.env_kwargs))
     env = spec.make(task, dict(kwargs, num_envs=1 if for_eval else config.num_envs))
     if spec.learner is not None:
         if for_eval:
             env = learned.evaluation_env(env)
         else:
             env = learned = spec.learner(env, task, config.seed, config.reward_kwargs, learned_state, kwargs)
-    cameras = config.cameras if is_insertion_task(task) else tuple(camera_roles(env_cameras(env)).values())
-    return PolicyObservation(env, config.image_size, cameras, ft=config.uses_ft, state=config.policy_state), learned
+    if not config.uses_images:
+        cameras = ()
+    else:
+        cameras = config.cameras if is_insertion_task(task) else tuple(camera_roles(env_cameras(env)).values())
+    # ManiSkill's own tasks have no socket: their privileged state is left out rather than guessed.
+    keys = state_parts(config.policy_qvel, config.policy_privileged and is_insertion_task(task))
+    return PolicyObservation(env, config.image_size, cameras, ft=config.uses_ft, state=config.policy_state,
+                             state_keys=keys), learned
 
 
 def make_eval_env(config, learned=None) -> gym.Env:
