@@ -65,7 +65,7 @@ class ImageEncoder(nn.Module):
 
     def forward(self, x):
         """``[B, 3, H, W]`` floats in [0, 1] -> ``[B, out_dim]``."""
-        return self.fc(self.conv(x).flatten(1))
+        return self.fc(self.conv(x.contiguous(memory_format=torch.channels_last)).flatten(1))
 
 
 class ImageDecoder(nn.Module):
@@ -85,7 +85,9 @@ class ImageDecoder(nn.Module):
 
     def forward(self, h):
         """``[B, in_dim]`` -> image logits ``[B, 3, H, W]``."""
-        return self.deconv(self.fc(h).view(h.shape[0], self.c0, self.side, self.side))
+        # Channels-last: the CPU's transposed convolutions run ~1.7x faster so (they are most of a training step).
+        x = self.fc(h).view(h.shape[0], self.c0, self.side, self.side).contiguous(memory_format=torch.channels_last)
+        return self.deconv(x)
 
 
 class CausalConv1d(nn.Conv1d):

@@ -75,6 +75,8 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     device = torch.device("cuda" if config.device == "auto" and torch.cuda.is_available() else
                           ("cpu" if config.device == "auto" else config.device))
     model = DREMModel(config.model).to(device)
+    model.image_decoders.to(memory_format=torch.channels_last)
+    model.image_encoders.to(memory_format=torch.channels_last)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     gen = torch.Generator().manual_seed(config.seed)
     step = 0
@@ -105,7 +107,8 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
         dist = cosine_distance(h, h_goal)
         n = len(a)
         # Temporal position = -depth: the goal (depth 0) comes last.
-        l_triplet = triplet_loss(dist[:n], dist[n:], -data.depth[a], -data.depth[b], config.eps, config.beta1, config.beta2).mean()
+        ta, tb = -data.depth[a].to(device), -data.depth[b].to(device)
+        l_triplet = triplet_loss(dist[:n], dist[n:], ta, tb, config.eps, config.beta1, config.beta2).mean()
         l_recon = reconstruction_loss(recon, inputs)
         loss = l_triplet + config.alpha * l_recon
         opt.zero_grad(set_to_none=True)
@@ -148,7 +151,7 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
         sampler=data.header.get("config", {}),
         package_version=__version__,
     )
-    weights = {f"model.{k}": v for k, v in model.state_dict().items()}
+    weights = {f"model.{k}": v.contiguous() for k, v in model.state_dict().items()}
     weights["h_start"] = h0[0]
     weights["h_goal"] = hg[0]
     return save_checkpoint(str(path), header, weights)
