@@ -80,6 +80,13 @@ def _cmd_train_reward(args) -> None:
     print(f"reward checkpoint: {path}")
 
 
+def _cmd_calibrate_support(args) -> None:
+    from drem_maniskill.pipeline.support import calibrate_support
+
+    result = calibrate_support(args.checkpoint, args.dataset, args.out)
+    print(json.dumps({k: result[k] for k in ("nodes", "quantile", "tau", "max", "median")}, indent=2))
+
+
 def _cmd_examine(args) -> None:
     from drem_maniskill.pipeline.examine import examine
 
@@ -175,6 +182,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="torch CPU threads")
     p.set_defaults(func=_cmd_train_reward)
+
+    p = sub.add_parser("calibrate-support", help="tree nodes' reconstruction errors for the drem-guarded reward")
+    p.add_argument("--checkpoint", required=True, help="a DREM checkpoint (drem.pt)")
+    p.add_argument("--dataset", required=True, help="the progress tree it was trained on")
+    p.add_argument("--out", required=True, help="support.json to write (rewards/<task>/support.json for drem-guarded)")
+    p.set_defaults(func=_cmd_calibrate_support)
 
     from drem_maniskill.rl.__main__ import add_subcommands
 

@@ -17,6 +17,7 @@ import gymnasium as gym
 
 from drem_maniskill.baselines.vice import VICEConfig, VICERewardWrapper
 from drem_maniskill.drem import checkpoint as drem_checkpoints
+from drem_maniskill.drem.guard import SupportGuard, load_support
 from drem_maniskill.drem.wrapper import DREMRewardWrapper
 from drem_maniskill.envs import is_insertion_task
 from drem_maniskill.experts import collect_goal_examples
@@ -78,6 +79,16 @@ def _drem(image_only: bool) -> Callable:
     return make
 
 
+def _drem_guarded(task: str, kwargs: dict) -> gym.Env:
+    """DREM with ``drem.guard.SupportGuard`` (rewards/<task>/support.json): no pay off the tree's support."""
+    env = _drem(False)(task, kwargs)
+    try:
+        return SupportGuard(env, load_support(drem_checkpoints.default_checkpoint(task).parent / "support.json"))
+    except Exception:
+        env.close()
+        raise
+
+
 def _vice_learner(env: gym.Env, task: str, seed: int, options: dict, state: Optional[dict], make_kwargs: dict):
     """VICE-RAQ around the training env; goals from ``state`` when resuming, else from the scripted expert."""
     options = dict(options)
@@ -115,6 +126,8 @@ REWARDS: dict[str, RewardSpec] = {
     "engineered": RewardSpec("-exp(kappa ||x - x_G||), the paper's Engineered", env_reward_mode("engineered")),
     "drem": RewardSpec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", _drem(False),
                        stock_tasks=True),
+    "drem-guarded": RewardSpec("DREM scaled down where the model cannot reconstruct the state (not in the paper; "
+                               "docs/drem.md)", _drem_guarded),
     "drem-image": RewardSpec("DREM on images only, rewards/<task>/drem_image.pt", _drem(True)),
     # VICE replaces the reward; the env's sparse one is cheap and is kept in info["original_reward"].
     "vice": RewardSpec("VICE-RAQ success classifier on the images", env_reward_mode("sparse"), learner=_vice_learner),

@@ -1,0 +1,40 @@
+"""Calibrate ``drem.guard.SupportGuard``: the tree nodes' reconstruction errors per camera (not in the paper)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from drem_maniskill.drem.guard import GUARD_QUANTILE, image_errors
+from drem_maniskill.drem.reward import DREMReward
+from drem_maniskill.pipeline.dataset import TreeDataset
+
+
+def calibrate_support(checkpoint: str, tree: str, out: str, quantile: float = GUARD_QUANTILE, batch: int = 256) -> dict:
+    """Write ``out`` (JSON): ``tau``, the ``quantile`` of every tree node's reconstruction error per camera."""
+    reward = DREMReward.from_checkpoint(checkpoint)
+    data = TreeDataset(tree, reward.model.config)
+    cams = list(reward.model.config.cameras)
+    errors = {c: [] for c in cams}
+    n = len(data.depth)
+    for start in tqdm(range(0, n, batch), desc="support: tree errors", unit="batch", disable=None):
+        idx = torch.arange(start, min(start + batch, n))
+        b = data.batch(idx)
+        for c, e in image_errors(reward.model, b).items():
+            errors[c].append(e.numpy())
+    errors = {c: np.concatenate(v) for c, v in errors.items()}
+    result = dict(
+        checkpoint=str(checkpoint), tree=str(tree), nodes=n, quantile=quantile,
+        tau={c: float(np.quantile(e, quantile)) for c, e in errors.items()},
+        max={c: float(e.max()) for c, e in errors.items()},
+        median={c: float(np.median(e)) for c, e in errors.items()},
+    )
+    tmp = Path(str(out) + ".tmp")
+    tmp.write_text(json.dumps(result, indent=1) + "\n")
+    os.replace(tmp, out)
+    return result
