@@ -86,8 +86,8 @@ def _make_env(env_id: str, checkpoint: str, env_kwargs: dict | None):
 
 
 # Where the examination holds the tip (socket frame, metres) to read the reward in every episode's
-# colours: above the opening, off-centre above it, pressed on the face beside it. "inserted" is
-# the expert's finished insertion, held.
+# colours: above the opening, off-centre above it, pressed on the face beside it, down beside the
+# socket. "inserted" is the expert's finished insertion, held.
 HOLD_POSITIONS = {
     "60 mm above": (0.0, 0.0, 0.060),
     "30 mm above": (0.0, 0.0, 0.030),
@@ -97,6 +97,9 @@ HOLD_POSITIONS = {
     "4 mm above, 2 mm off": (0.002, 0.0, 0.004),
     "4 mm above, 4 mm off": (0.004, 0.0, 0.004),
     "pressed 3 mm beside": (0.003, 0.0, -PRESS_DEPTH),
+    # Where SAC took the peg when trained on the reward from a one-placement tree: down beside the
+    # socket, the part as low as an inserted one but nowhere near the opening.
+    "25 mm down, 45 mm beside": (0.0, -0.045, -0.025),
 }
 HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
 INSERTION_START = 0.001  # m below the top face: the part has started going in
@@ -200,6 +203,8 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
     losses = [d for ep in curves.get("search_fail", []) if (d := first_contact_loss(ep)) is not None]
     direct = [ep["rewards"][-1] for ep in curves.get("direct_success", []) if ep["success"]]
     spread = {k: v["std"] for k, v in held.items() if k != "inserted"}
+    # Issue 12's colour-invariance test is about the positions above the opening.
+    above = [spread[k] for k, target in HOLD_POSITIONS.items() if k in spread and target[2] > 0]
     result = dict(
         env_id=env_id, checkpoint=str(checkpoint), seeds=list(map(int, seeds)),
         value_order_spearman=float(np.nanmean(rho)) if rho else float("nan"),
@@ -219,7 +224,7 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
             after_1=float(np.mean([d["after_1"] for d in losses])) if losses else None,
             after_3=float(np.mean([d["after_3"] for d in losses if d["after_3"] is not None])) if losses else None,
         ),
-        colour_spread=dict(max_std=max(spread.values()) if spread else None, per_position=spread),
+        colour_spread=dict(max_std=max(above) if above else None, per_position=spread),
         held_positions={k: {m: v[m] for m in ("mean", "std", "reached_error_mm")} for k, v in held.items()},
         inserted_reward_std=held["inserted"]["std"] if held else None,
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
