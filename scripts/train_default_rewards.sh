@@ -30,6 +30,8 @@ for task in "${tasks[@]}"; do
   cp "$out/reward/drem.pt" "rewards/$task/drem.pt"
   cp "$out/examination/quality.json" "rewards/$task/quality.json"
   cp "$out/examination/examination.png" "rewards/$task/examination.png"
+  # Thresholds of the drem-guarded experiment (docs/drem.md; not in the paper).
+  $BIN calibrate-support --checkpoint "$out/reward/drem.pt" --dataset "$out/tree.h5" --out "rewards/$task/support.json"
   [ "$IMAGE_BASELINE" = 1 ] || continue
   # The paper's "Image learned" baseline: the same model and tree without the F/T input.
   $BIN train-reward --dataset "$out/tree.h5" --out "$out/reward_image" --preset quick --iterations "$ITERS" --threads 1 --modalities fixed wrist

@@ -48,7 +48,7 @@ def test_every_task_has_its_drem_alias():
 @pytest.mark.parametrize("task", TASKS)
 def test_every_task_ships_its_demo_and_checkpoints(task):
     assert (ROOT / "tasks" / task / "expert.h5").is_file() and (ROOT / "tasks" / task / "expert.json").is_file()
-    for name in ("drem.pt", "drem_image.pt", "MODEL_CARD.md", "quality.json", "examination.png"):
+    for name in ("drem.pt", "drem_image.pt", "MODEL_CARD.md", "quality.json", "examination.png", "support.json"):
         assert (ROOT / "rewards" / task / name).is_file(), f"rewards/{task}/{name} is missing"
 
 
@@ -61,7 +61,9 @@ def test_the_wheels_data_files_are_the_rewards_folder():
     for folder, names in files.items():
         task = folder.rsplit("/", 1)[-1]
         assert folder == f"share/drem-maniskill/rewards/{task}"
-        on_disk = {f"rewards/{task}/{p.name}" for p in (ROOT / "rewards" / task).iterdir() if p.suffix in (".pt", ".md")}
+        # support.json: the drem-guarded reward's thresholds, read beside the checkpoint.
+        on_disk = {f"rewards/{task}/{p.name}" for p in (ROOT / "rewards" / task).iterdir()
+                   if p.suffix in (".pt", ".md") or p.name == "support.json"}
         assert set(names) == on_disk, f"{folder}: pyproject lists {sorted(names)}, rewards/{task} has {sorted(on_disk)}"
         if task in TASKS:
             assert f"rewards/{task}/drem_image.pt" in names

@@ -1,0 +1,67 @@
+"""Markdown tables of an examination's ``quality.json`` (and an image-only one beside it), for model cards and docs.
+
+    .venv/bin/python scripts/quality_tables.py rewards/PegInHole-v1/quality.json [rewards/PegInHole-v1/quality_image.json]
+
+Prints the measures against issue 12's targets, the held positions, and with a second file the
+two checkpoints side by side. The numbers are read, never typed.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def _f(x, digits=3) -> str:
+    return "n/a" if x is None else f"{x:.{digits}f}"
+
+
+def measures(q: dict) -> list:
+    """``(name, value, target)`` rows of one ``quality.json``."""
+    plateau, loss = q.get("contact_plateau") or {}, q.get("search_fail_first_contact_loss") or {}
+    rates = q.get("success_rate", {})
+    return [
+        ("value-order Spearman (reward vs time step, expert episodes)", _f(q["value_order_spearman"]), ">= 0.95"),
+        ("AUROC of the final-step reward, success vs failure", _f(q["final_reward_auroc"]), ">= 0.98"),
+        ("Random policy mean reward", _f(q["random_mean_reward"]), "<= 0.1"),
+        (f"contact plateau: Align Success from first contact to insertion, over Direct Success's final "
+         f"({plateau.get('episodes')} episodes)",
+         f"{_f(plateau.get('fraction'))} ({_f(plateau.get('mean_reward'))} / {_f(plateau.get('direct_success_final'))})", "<= 0.6"),
+        (f"Search Fail 1 / 3 steps after it first loses contact ({loss.get('episodes_with_loss')} episodes)",
+         f"{_f(loss.get('after_1'))} / {_f(loss.get('after_3'))}", "<= 0.1 at 3"),
+        ("colour spread: the largest standard deviation over episodes at a held position above the opening",
+         _f((q.get("colour_spread") or {}).get("max_std")), "<= 0.05"),
+        ("finished, held insertion: standard deviation over episodes", _f(q.get("inserted_reward_std")), "<= 0.1"),
+        ("examination success rates", ", ".join(f"{k} {v:.0%}" for k, v in rates.items()), ""),
+        ("Spearman with the task's `normalized_dense`, all rollouts / expert rollouts",
+         f"{_f(q.get('spearman_with_normalized_dense'))} / {_f(q.get('spearman_with_normalized_dense_expert'))}", ""),
+    ]
+
+
+def tables(q: dict, image: dict | None = None) -> str:
+    """The markdown."""
+    out = ["| measure | value | target (issue 12) |", "| --- | --- | --- |"]
+    out += [f"| {a} | {b} | {c} |" for a, b, c in measures(q)]
+    out += ["", "| where the tip is held | mean | std |", "| --- | --- | --- |"]
+    for k, v in q.get("held_positions", {}).items():
+        out.append(f"| {k} | {_f(v['mean'])} | {_f(v['std'])} |")
+    if image is not None:
+        out += ["", "| measure | images + F/T | images only |", "| --- | --- | --- |"]
+        for (a, b, _), (_, c, _) in zip(measures(q), measures(image)):
+            out.append(f"| {a} | {b} | {c} |")
+        for k, v in q.get("held_positions", {}).items():
+            w = image.get("held_positions", {}).get(k, {})
+            out.append(f"| held {k}: mean | {_f(v['mean'])} | {_f(w.get('mean'))} |")
+    return "\n".join(out)
+
+
+def main() -> None:
+    """Command line."""
+    files = [json.load(open(p)) for p in sys.argv[1:3]]
+    if not files:
+        sys.exit(__doc__)
+    print(tables(files[0], files[1] if len(files) > 1 else None))
+
+
+if __name__ == "__main__":
+    main()
