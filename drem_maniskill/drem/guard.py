@@ -57,7 +57,8 @@ class SupportGuard(gym.Wrapper):
     def step(self, action):
         """Step, then scale the reward by how well the state reconstructs."""
         obs, reward, terminated, truncated, info = self.env.step(action)
-        w = guard_weight(image_errors(self.drem.model, self.drem.inputs(self.env, obs)), self.tau).to(reward.device)
+        # The images the reward was just computed from: rendering them again would cost as much as the step.
+        w = guard_weight(image_errors(self.drem.model, self.drem.last_inputs), self.tau).to(reward.device)
         info["drem_support"] = w
         return obs, reward * w, terminated, truncated, info
 

@@ -99,8 +99,13 @@ class DREMReward(nn.Module):
         return batch
 
     def reward(self, env, obs) -> torch.Tensor:
-        """``R(s)`` ``[num_envs]`` of ``env``'s current state, ``obs`` its observation of it."""
-        return self(self.inputs(env, obs))
+        """``R(s)`` ``[num_envs]`` of ``env``'s current state, ``obs`` its observation of it.
+
+        Its inputs stay in ``last_inputs`` until the next call: what else reads this state's images
+        (``drem.guard.SupportGuard``) takes them from there rather than rendering the cameras again.
+        """
+        self.last_inputs = self.inputs(env, obs)
+        return self(self.last_inputs)
 
     # Batches up to this size take the fast encoder; larger ones the model's convs (oneDNN),
     # which win once the work per op outweighs the per-op overhead (measured on 2 CPU cores).
