@@ -253,10 +253,8 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             # Socket on the floor: small xy and yaw jitter.
             socket_xy = torch.as_tensor(rng.uniform(-self.socket_xy_range, self.socket_xy_range, size=(2,)), dtype=torch.float32)
             socket_yaw = torch.as_tensor(rng.uniform(-self.socket_yaw_range, self.socket_yaw_range), dtype=torch.float32)
-            p = torch.zeros(b, 3)
-            p[:, :2] = socket_xy + torch.tensor(self.socket_center)
-            self.socket.set_pose(Pose.create_from_pq(p, _yaw_quat(socket_yaw)))
-            socket_pose = Pose.create_from_pq(p, _yaw_quat(socket_yaw))
+            socket_pose = self._socket_pose_at(socket_xy + torch.tensor(self.socket_center), socket_yaw, torch.zeros(b))
+            self.socket.set_pose(socket_pose)
             top = socket_pose * Pose.create_from_pq(torch.tensor([[0, 0, self.socket_height]]).repeat(b, 1))
 
             # Part tip in the start region: above the opening with an xy offset and a yaw error.
@@ -380,6 +378,11 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         yaw = rng.uniform(-self.socket_yaw_range, self.socket_yaw_range, size=(count, 1))
         return np.concatenate([xy, yaw], axis=1)
 
+    @staticmethod
+    def _socket_pose_at(xy: torch.Tensor, yaw: torch.Tensor, z: torch.Tensor) -> Pose:
+        """The socket's pose ``[B]``: at ``xy`` ``[B, 2]`` on the floor, turned by ``yaw`` ``[B]``, its base at ``z`` ``[B]``."""
+        return Pose.create_from_pq(torch.cat([xy, z[:, None]], dim=1), _yaw_quat(yaw))
+
     def place_socket(self, placements) -> None:
         """Move the socket to ``placements`` ``[num_envs, 3]`` and the robot (with the held part) rigidly with it.
 
@@ -390,9 +393,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         """
         placements = torch.as_tensor(placements, dtype=torch.float32, device=self.device).reshape(self.num_envs, 3)
         old = self.socket.pose
-        p = old.p.clone()
-        p[:, :2] = placements[:, :2]
-        new = Pose.create_from_pq(p, _yaw_quat(placements[:, 2]))
+        new = self._socket_pose_at(placements[:, :2], placements[:, 2], old.p[:, 2])
         move = new * old.inv()
         root = self.agent.robot.pose
         self.socket.set_pose(new)
@@ -401,9 +402,8 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
     def pose_at_placement(self, raw_pose: torch.Tensor, placement) -> torch.Tensor:
         """World poses ``[B, 7]`` moved to where they would be with the socket at ``placement`` ``[3]`` (x, y, yaw)."""
         ref = torch.as_tensor(placement, dtype=torch.float32, device=self.device).reshape(1, 3).expand(self.num_envs, 3)
-        p = self.socket.pose.p.clone()
-        p[:, :2] = ref[:, :2]
-        move = Pose.create_from_pq(p, _yaw_quat(ref[:, 2])) * self.socket.pose.inv()
+        socket = self.socket.pose
+        move = self._socket_pose_at(ref[:, :2], ref[:, 2], socket.p[:, 2]) * socket.inv()
         return (move * Pose.create(raw_pose)).raw_pose
 
     def in_start_region(self) -> torch.Tensor:
