@@ -179,6 +179,12 @@ def load_expert(h5_path: str, episode: int = 0) -> ExpertTrajectory:
 
 
 # ---------------------------------------------------------------------------- children
+def _batch_rows(values: np.ndarray, start: int, n: int) -> np.ndarray:
+    """Rows ``start`` to ``start + n`` of ``values``, the last one repeated to fill a batch of ``n`` envs."""
+    rows = np.asarray(values[start : start + n])
+    return np.concatenate([rows, np.repeat(rows[-1:], n - len(rows), 0)])
+
+
 class ChildSampler:
     """An env that restores a seed state and applies random actions, in batches of ``num_envs``."""
 
@@ -248,12 +254,10 @@ class ChildSampler:
                 chunk = torch.cat([chunk, chunk.new_zeros(self.n - k, chunk.shape[1])])
             self.adapter.set_state(broadcast_state(seed_state, self.n))
             if colors is not None:
-                rows = np.asarray(colors[start : start + self.n])
                 # Colours are not state: the restored step replays the same whatever they are.
-                self.adapter.set_colors(np.concatenate([rows, np.repeat(rows[-1:], self.n - k, 0)]))
+                self.adapter.set_colors(_batch_rows(colors, start, self.n))
             if placements is not None:
-                rows = np.asarray(placements[start : start + self.n])
-                self.adapter.place(np.concatenate([rows, np.repeat(rows[-1:], self.n - k, 0)]))
+                self.adapter.place(_batch_rows(placements, start, self.n))
             obs, *_ = self.env.step(chunk)
             placed = self.adapter.placements()
             if placed is not None:
