@@ -52,7 +52,9 @@ def _cmd_sample(args) -> None:
                                        max_depth=args.max_depth, action_scale=args.action_scale, seed=args.seed,
                                        episode=args.episode, workers=args.workers, expert_step_scale=args.expert_step_scale,
                                        randomize_colors=args.randomize_colors,
-                                       randomize_placement=args.randomize_placement).items() if v is not None}
+                                       randomize_placement=args.randomize_placement, outward_depth=args.outward_depth,
+                                       outward_lineages=args.outward_lineages,
+                                       outward_children=args.outward_children).items() if v is not None}
     config = SamplerConfig.preset(args.preset, **overrides)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
@@ -165,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fresh part and socket colours per child (default: on)")
     p.add_argument("--randomize-placement", action=argparse.BooleanOptionalAction, default=None,
                    help="each child's scene moved to a fresh socket placement, robot with it (default: on)")
+    p.add_argument("--outward-depth", type=int,
+                   help="depths sampled past the start region, away from the expert's path (not in the paper; default 0: off)")
+    p.add_argument("--outward-lineages", type=int, help="outward directions, one lineage each (default: 12)")
+    p.add_argument("--outward-children", type=int, help="random actions per outward seed and depth (default: 100)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")

@@ -106,15 +106,18 @@ class TreeDataset:
 # Regions of the tip around the opening (socket frame, metres), for ``tree_report``.
 NEAR_HEIGHT = 0.006  # above the opening: the expert's pre-insertion height
 CENTRED = 0.002  # off the axis: "a millimetre or two"
+BESIDE = 0.01  # below the top face this far off the axis: not in the opening but beside the socket
 
 
 def tree_report(path: str, contact_force: float = 3.0) -> dict:
     """Where the tree's nodes are around the opening, and at which depths (our tasks' trees; they hold ``tip_in_socket``).
 
-    Regions: ``inserted`` (tip more than 1 mm below the top face), ``above, centred`` (up to
-    6 mm above it, within 2 mm of the axis), ``above, off-centre`` (the same height, 2-10 mm off),
-    ``in contact, not inserted`` (wrist force over ``contact_force`` with the tip not below
-    1 mm: pressed on the face or the rim), ``far`` (the rest). A tree resolves progress near the
+    Regions: ``inserted`` (tip more than 1 mm below the top face, within 1 cm of the axis),
+    ``beside, below the top face`` (lower than that and farther out: beside the socket, down to the
+    floor, where ``SamplerConfig.outward_depth`` puts nodes), ``above, centred`` (up to 6 mm above
+    the face, within 2 mm of the axis), ``above, off-centre`` (the same height, 2-10 mm off),
+    ``in contact, not inserted`` (wrist force over ``contact_force`` with the tip not below 1 mm:
+    pressed on the face or the rim), ``far`` (the rest). A tree resolves progress near the
     opening when these hold nodes at depths that grow with their distance from the goal.
     """
     with h5py.File(path, "r") as f:
@@ -123,11 +126,13 @@ def tree_report(path: str, contact_force: float = 3.0) -> dict:
         tip, depth = f["tip_in_socket"][()], f["depth"][()]
         force = np.abs(f["ft"][:, -1, 2])
     radial, z = np.linalg.norm(tip[:, :2], axis=1), tip[:, 2]
-    inserted = z < -0.001
-    contact = (force > contact_force) & ~inserted
+    below = z < -0.001
+    inserted, beside = below & (radial <= BESIDE), below & (radial > BESIDE)
+    contact = (force > contact_force) & ~below
     near = (z >= 0) & (z <= NEAR_HEIGHT)
     regions = {
         "inserted": inserted,
+        "beside, below the top face": beside,
         "above, centred": near & (radial <= CENTRED) & ~contact,
         "above, off-centre": near & (radial > CENTRED) & (radial <= 0.01) & ~contact,
         "in contact, not inserted": contact,

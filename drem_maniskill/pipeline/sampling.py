@@ -85,6 +85,18 @@ class SamplerConfig:
     draw it; recorded in ``placement``): the robot moves with the socket, so the step replays the same in the
     socket's frame. Not in the paper, whose hole stays put; our tasks place the socket anew at every reset, and a
     tree of one placement teaches a reward that reads where the socket is, not how far the part is from it."""
+    outward_depth: int = 0
+    """Depths sampled past the start region, away from the expert's path (not in the paper; 0: off). The paper's tree
+    is a tube around the expert, so a reward trained on it values states off the tube arbitrarily, and SAC found
+    such states that it pays like an insertion (the part pressed on the floor beside the socket). Each outward
+    lineage keeps the child that went farthest along its own direction (``outward_directions``), so the tree gains
+    states beside and below the start region, labelled by their depth: farther from the goal than the start."""
+    outward_lineages: int = 12
+    """Outward directions: azimuths spread evenly, elevations alternating over ``outward_elevations``."""
+    outward_children: int = 100
+    """Random actions (full range) per outward seed and depth."""
+    outward_elevations: tuple = (0.0, -35.0, -60.0)
+    """Degrees above the horizontal of the outward directions (negative: downwards, towards the floor)."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -93,6 +105,14 @@ class SamplerConfig:
         if name not in presets:
             raise ValueError(f"unknown sampler preset {name!r}; choose one of {list(presets)}")
         return cls(**{**presets[name], **overrides})
+
+
+def outward_directions(config: SamplerConfig) -> np.ndarray:
+    """Unit vectors ``[outward_lineages, 3]`` (world frame at the expert's placement) the outward lineages move along."""
+    k = config.outward_lineages
+    azimuth = 2 * np.pi * np.arange(k) / k
+    elevation = np.deg2rad(np.asarray(config.outward_elevations, float))[np.arange(k) % len(config.outward_elevations)]
+    return np.stack([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)], -1)
 
 
 class NoStartRegionError(RuntimeError):
@@ -363,6 +383,8 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
     try:
         depth, seeds, seed_nodes = _open_or_resume(partial, expert, expert_ee, config, sampler, goal_index)
         needed = math.ceil(config.num_seeds * config.delta)
+        if _start_depth(partial) is not None:
+            needed = 0  # resuming the outward phase: the start region was reached already
         bar = tqdm(total=config.max_depth, initial=depth, desc="backward sampling", unit="depth", disable=not progress)
         while True:
             in_region = int(sum(bool(s["in_start_region"]) for s in seeds))
@@ -373,29 +395,9 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
                     f"backward sampling reached max_depth={config.max_depth} with {in_region}/{len(seeds)} seeds in the "
                     f"start region (needed {needed}); raise --max-depth or --action-scale, or check the expert"
                 )
-            # The random stream is a function of the depth, so a resumed run draws the same actions.
-            rng = np.random.default_rng([config.seed, depth])
-            children = []
-            # Colours from a stream of their own: turning them off leaves the actions as they were.
-            color_rng = np.random.default_rng([config.seed, depth, 1])
-            place_rng = np.random.default_rng([config.seed, depth, 2])
             scale = action_scale_at(depth, expert_ee, config, sampler.translation_limit)
-            for seed, node in zip(seeds, seed_nodes):
-                actions = sampler.random_actions(rng, config.num_children, scale)
-                colors = sampler.random_colors(color_rng, config.num_children) if config.randomize_colors else None
-                places = sampler.random_placements(place_rng, config.num_children) if config.randomize_placement else None
-                if pool is None:
-                    res = sampler.children(sampler.adapter.unflatten(seed["state"]), actions, colors, places)
-                else:
-                    parts = np.array_split(np.arange(len(actions)), config.workers)
-                    outs = pool.map(_worker_children, [(seed["state"], actions[p], None if colors is None else colors[p],
-                                                        None if places is None else places[p])
-                                                       for p in parts if len(p)])
-                    res = {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
-                res["parent"] = np.full(len(actions), node)
-                children.append(res)
-                bar.set_postfix(children=config.num_children * len(seeds), in_start=in_region)
-            merged = {k: np.concatenate([c[k] for c in children]) for k in children[0]}
+            merged = _children_of(sampler, pool, config, seeds, seed_nodes, depth, config.num_children, scale)
+            bar.set_postfix(children=config.num_children * len(seeds), in_start=in_region)
             # Expert-guided progress measure: closest end-effector state to the expert d+1 steps back.
             ref = expert_ee[max(goal_index - (depth + 1), 0)]
             dist = pose_distance(merged["ee"], ref, config.rotation_weight, gripper_weight)
@@ -405,6 +407,9 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
             bar.update(1)
         bar.close()
+        start_depth = _mark_start_depth(partial, depth)
+        if config.outward_depth > 0:
+            depth, seeds = _sample_outward(partial, sampler, pool, config, start_depth, depth, seeds, seed_nodes, progress)
         with h5py.File(partial, "a") as f:
             f.attrs["complete"] = True
             f.attrs["final_depth"] = depth
@@ -416,6 +421,74 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             pool.close()
             pool.join()
 
+
+
+def _children_of(sampler: "ChildSampler", pool, config: SamplerConfig, seeds: list, seed_nodes: list, depth: int,
+                 num_children: int, scale: float, stream: int = 0) -> dict:
+    """``num_children`` children of every seed, each with fresh colours and placement where configured, merged in seed order."""
+    # The random streams are functions of the depth, so a resumed run draws the same actions; colours and
+    # placements have streams of their own, so turning them off leaves the actions as they were.
+    rng = np.random.default_rng([config.seed, depth] + ([stream] if stream else []))
+    color_rng = np.random.default_rng([config.seed, depth, 1 + 3 * stream])
+    place_rng = np.random.default_rng([config.seed, depth, 2 + 3 * stream])
+    children = []
+    for seed, node in zip(seeds, seed_nodes):
+        actions = sampler.random_actions(rng, num_children, scale)
+        colors = sampler.random_colors(color_rng, num_children) if config.randomize_colors else None
+        places = sampler.random_placements(place_rng, num_children) if config.randomize_placement else None
+        if pool is None:
+            res = sampler.children(sampler.adapter.unflatten(seed["state"]), actions, colors, places)
+        else:
+            parts = np.array_split(np.arange(len(actions)), config.workers)
+            outs = pool.map(_worker_children, [(seed["state"], actions[p], None if colors is None else colors[p],
+                                                None if places is None else places[p])
+                                               for p in parts if len(p)])
+            res = {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
+        res["parent"] = np.full(len(actions), node)
+        children.append(res)
+    return {k: np.concatenate([c[k] for c in children]) for k in children[0]}
+
+
+def _start_depth(path: Path) -> Optional[int]:
+    """The depth at which the backward phase reached the start region, once it has (else None)."""
+    with h5py.File(path, "r") as f:
+        value = f.attrs.get("start_depth")
+    return None if value is None else int(value)
+
+
+def _mark_start_depth(path: Path, depth: int) -> int:
+    """Record (once) the depth that reached the start region; returns it."""
+    known = _start_depth(path)
+    if known is not None:
+        return known
+    with h5py.File(path, "a") as f:
+        f.attrs["start_depth"] = depth
+    return depth
+
+
+def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, start_depth: int, depth: int,
+                    seeds: list, seed_nodes: list, progress: bool) -> tuple:
+    """The outward phase (``SamplerConfig.outward_depth``): one lineage per direction, from the start-region seed."""
+    directions = outward_directions(config)
+    with h5py.File(partial, "r") as f:
+        start_node = int(f[f"seeds/depth_{start_depth}/node"][0])
+        origin = f["tcp_pose"][start_node][:3].astype(np.float64)
+    if depth == start_depth:
+        seeds, seed_nodes = [seeds[0]] * len(directions), [seed_nodes[0]] * len(directions)
+    bar = tqdm(total=config.outward_depth, initial=depth - start_depth, desc="outward sampling", unit="depth",
+               disable=not progress)
+    while depth < start_depth + config.outward_depth:
+        merged = _children_of(sampler, pool, config, seeds, seed_nodes, depth, config.outward_children, config.action_scale,
+                              stream=3)
+        along = (merged["ee"][:, :3] - origin).reshape(len(directions), config.outward_children, 3)
+        best = np.einsum("lcx,lx->lc", along, directions).argmax(1)
+        chosen = np.arange(len(directions)) * config.outward_children + best
+        depth += 1
+        seed_nodes = _append_depth(partial, merged, depth, chosen)
+        seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
+        bar.update(1)
+    bar.close()
+    return depth, seeds
 
 def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarray, config: SamplerConfig,
                     sampler: ChildSampler, goal_index: int):

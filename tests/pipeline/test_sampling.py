@@ -15,7 +15,9 @@ from drem_maniskill.pipeline.sampling import (
     NoStartRegionError,
     SamplerConfig,
     backward_sample,
+    outward_directions,
 )
+from drem_maniskill.pipeline import sampling
 
 
 @pytest.mark.slow
@@ -57,6 +59,45 @@ def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path):
         np.testing.assert_allclose(a["tcp_pose"][()], b["tcp_pose"][()], atol=1e-4)
         np.testing.assert_array_equal(a["colors"][()], b["colors"][()])
 
+
+
+@pytest.mark.slow
+def test_outward_lineages_leave_the_start_region_along_their_directions_and_resume(pipeline, tmp_path, monkeypatch):
+    config = SamplerConfig.preset("tiny", outward_depth=3, outward_lineages=4, outward_children=6)
+    out = tmp_path / "tree.h5"
+    real_append = sampling._append_depth
+
+    def interrupted(path, data, depth, chosen):
+        if len(chosen) == 4 and depth == int(h5py.File(path, "r").attrs["start_depth"]) + 2:
+            raise KeyboardInterrupt
+        return real_append(path, data, depth, chosen)
+
+    monkeypatch.setattr(sampling, "_append_depth", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        backward_sample(pipeline["expert"], str(out), config, progress=False)
+    monkeypatch.setattr(sampling, "_append_depth", real_append)
+    backward_sample(pipeline["expert"], str(out), config, progress=False)  # resumes the outward phase
+    with h5py.File(out, "r") as f, h5py.File(pipeline["tree"], "r") as ref:
+        start, final = int(f.attrs["start_depth"]), int(f.attrs["final_depth"])
+        depth, parent, tcp, seed = f["depth"][()], f["parent"][()], f["tcp_pose"][()], f["is_seed"][()]
+        # The backward phase is the tree without the outward phase, node for node.
+        n = len(ref["depth"])
+        assert start == ref["depth"][()].max() and final == start + 3
+        np.testing.assert_allclose(tcp[:n], ref["tcp_pose"][()], atol=1e-4)
+        assert np.all(np.bincount(depth)[start + 1:] == 4 * 6)
+        origin = tcp[np.nonzero(seed & (depth == start))[0][0], :3]
+        assert np.all(parent[depth == start + 1] == np.nonzero(seed & (depth == start))[0][0])
+        along = []
+        for d in range(start + 1, final + 1):
+            seeds = np.nonzero(seed & (depth == d))[0]  # lineage order
+            assert len(seeds) == 4
+            if d > start + 1:  # each lineage's children hang under its own previous seed
+                kids = np.nonzero(depth == d)[0].reshape(4, 6)
+                assert np.all(parent[kids] == np.nonzero(seed & (depth == d - 1))[0][:, None])
+            along.append(np.einsum("lx,lx->l", tcp[seeds, :3] - origin, outward_directions(config)))
+        along = np.array(along)
+        # Each lineage moves away along its own direction, a centimetre or more in three steps.
+        assert np.all(np.diff(along, axis=0) > 0) and np.all(along[-1] > 0.01), along
 
 @pytest.mark.slow
 def test_each_child_gets_its_own_colours_which_do_not_change_its_step(pipeline):
