@@ -32,6 +32,8 @@ def measures(q: dict) -> list:
         ("colour spread: the largest standard deviation over episodes at a held position above the opening",
          _f((q.get("colour_spread") or {}).get("max_std")), "<= 0.05"),
         ("finished, held insertion: standard deviation over episodes", _f(q.get("inserted_reward_std")), "<= 0.1"),
+        ("pressed on the floor 75 mm beside the socket, over a finished insertion (the trap SAC found)",
+         _f(q.get("floor_beside_over_inserted")), "well below 1"),
         ("examination success rates", ", ".join(f"{k} {v:.0%}" for k, v in rates.items()), ""),
         ("Spearman with the task's `normalized_dense`, all rollouts / expert rollouts",
          f"{_f(q.get('spearman_with_normalized_dense'))} / {_f(q.get('spearman_with_normalized_dense_expert'))}", ""),

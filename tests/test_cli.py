@@ -44,8 +44,12 @@ def test_chain_record_sample_train_examine(tmp_path):
     from drem_maniskill.pipeline.examine import HOLD_POSITIONS
 
     held = quality["held_positions"]
-    assert list(held) == [*HOLD_POSITIONS, "inserted"]
+    floor = "pressed on the floor, 75 mm beside"
+    assert list(held) == [*HOLD_POSITIONS, floor, "inserted"]
     assert all(v["reached_error_mm"] < 2.0 for k, v in held.items() if k != "inserted" and "beside" not in k)
+    # Pressed on the floor: 2 mm short of the target below it, nowhere else.
+    assert 1.0 < held[floor]["reached_error_mm"] < 3.0
+    assert quality["floor_beside_over_inserted"] == pytest.approx(held[floor]["mean"] / held["inserted"]["mean"])
     assert quality["colour_spread"]["max_std"] == max(v["std"] for k, v in held.items() if k != "inserted")
     assert set(quality["contact_plateau"]) == {"episodes", "mean_reward", "direct_success_final", "fraction"}
     assert (tmp_path / "exam" / "examination.png").stat().st_size > 10_000

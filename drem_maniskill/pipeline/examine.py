@@ -101,6 +101,20 @@ HOLD_POSITIONS = {
     # socket, the part as low as an inserted one but nowhere near the opening.
     "25 mm down, 45 mm beside": (0.0, -0.045, -0.025),
 }
+FLOOR_BESIDE = 0.075  # m from the axis: clear of both sockets' blocks on the way down
+
+
+def hold_targets(env) -> dict:
+    """``HOLD_POSITIONS`` plus the part pressed on the floor ``FLOOR_BESIDE`` beside the socket (the task's height).
+
+    Where SAC took the part when trained on the rewards of trees without the outward phase
+    (``SamplerConfig.outward_depth``): pressed on the floor a few centimetres beside the socket,
+    which those rewards paid about as much as an insertion.
+    """
+    floor = -(float(env.unwrapped.socket_height) + PRESS_DEPTH)
+    return {**HOLD_POSITIONS, f"pressed on the floor, {FLOOR_BESIDE * 1000:.0f} mm beside": (0.0, -FLOOR_BESIDE, floor)}
+
+
 HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
 INSERTION_START = 0.001  # m below the top face: the part has started going in
 
@@ -193,7 +207,7 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         expert = [examination_episode(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
         curves = {p: [examination_episode(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
                   for p in policies}
-        held = hold_positions(env, seeds) if is_insertion_task(env_id) else {}
+        held = hold_positions(env, seeds, hold_targets(env)) if is_insertion_task(env_id) else {}
     finally:
         env.close()
     solved = [e for e in expert if e["success"]]
@@ -227,6 +241,10 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         colour_spread=dict(max_std=max(above) if above else None, per_position=spread),
         held_positions={k: {m: v[m] for m in ("mean", "std", "reached_error_mm")} for k, v in held.items()},
         inserted_reward_std=held["inserted"]["std"] if held else None,
+        # What a policy gains by pressing the part on the floor instead of inserting it (the trap SAC found).
+        floor_beside_over_inserted=(held[floor_key]["mean"] / held["inserted"]["mean"]
+                                    if (floor_key := next((k for k in held if k.startswith("pressed on the floor")), None))
+                                    and held["inserted"]["mean"] else None),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],
