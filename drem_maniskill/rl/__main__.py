@@ -23,7 +23,9 @@ def _cmd_train_policy(args) -> None:
     overrides = {k: v for k, v in dict(steps=args.steps, out=args.out, eval_every=args.eval_every,
                                        eval_episodes=args.eval_episodes, threads=args.threads, num_envs=args.num_envs,
                                        sim_backend=args.sim_backend, learning_starts=args.learning_starts,
-                                       batch_size=args.batch_size, device=args.device).items() if v is not None}
+                                       batch_size=args.batch_size, device=args.device,
+                                       reward_checkpoint=args.reward_checkpoint,
+                                       terminate_on_success=args.terminate_on_success).items() if v is not None}
     config = RLConfig.preset(args.preset, task=args.task, reward=args.reward, algo=args.algo, seed=args.seed, **overrides)
     print(f"policy config: {json.dumps(config.to_dict())}")
     result = train_policy(config)
@@ -54,6 +56,9 @@ def add_subcommands(sub) -> None:
     p.add_argument("--out", help="run dir (default: outputs/rl/<task>/<reward>/seed<S>)")
     p.add_argument("--eval-every", type=int, help="steps between evaluations and checkpoints")
     p.add_argument("--eval-episodes", type=int, help="held-out seeds per evaluation (from 10000)")
+    p.add_argument("--reward-checkpoint", help="drem rewards: this DREM checkpoint instead of the shipped rewards/<task>/drem.pt")
+    p.add_argument("--terminate-on-success", action=argparse.BooleanOptionalAction, default=None,
+                   help="end a training episode at its first success (default: off, episodes run to the time limit)")
     p.add_argument("--learning-starts", type=int)
     p.add_argument("--batch-size", type=int)
     p.add_argument("--num-envs", type=int, help="parallel envs (GPU sim)")

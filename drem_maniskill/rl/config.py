@@ -50,6 +50,7 @@ class RLConfig:
     gamma: float = 0.95  # 50-step episodes: an effective horizon of ~20 steps
     tau: float = 0.005
     ent_coef: str = "auto"
+    terminate_on_success: bool = False  # end a training episode at its first success (a terminal state)
 
     # --- environment
     num_envs: int = 1
@@ -66,6 +67,7 @@ class RLConfig:
     # --- options of the reward, passed to its spec's learner (vice: VICEConfig overrides, and
     # goal_seeds: expert episodes, seeds 0..n-1, whose successful images are the goals; default 10)
     reward_kwargs: dict = field(default_factory=dict)
+    reward_checkpoint: Optional[str] = None  # the DREM rewards: this checkpoint instead of rewards/<task>/drem.pt
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "RLConfig":

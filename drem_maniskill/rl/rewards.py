@@ -11,6 +11,7 @@ interface, which the run loop updates every ``update_every`` env steps, checkpoi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Optional, Protocol
 
 import gymnasium as gym
@@ -55,7 +56,12 @@ def _drem(image_only: bool) -> Callable:
     """``make`` of DREM from the shipped checkpoint: the ``drem`` mode on our tasks, the wrapper on ManiSkill's."""
 
     def make(task: str, kwargs: dict) -> gym.Env:
-        path = drem_checkpoints.default_checkpoint(task, image_only=image_only)
+        kwargs = dict(kwargs)
+        given = kwargs.pop("drem_checkpoint", None)
+        path = Path(given) if given else drem_checkpoints.default_checkpoint(task, image_only=image_only)
+        if given and not path.exists():
+            raise FileNotFoundError(f"reward checkpoint {path} (--reward-checkpoint) not found; make one with "
+                                    "`drem-maniskill train-reward`")
         if not path.exists():
             if image_only:
                 raise FileNotFoundError(
@@ -80,10 +86,12 @@ def _drem(image_only: bool) -> Callable:
 
 
 def _drem_guarded(task: str, kwargs: dict) -> gym.Env:
-    """DREM with ``drem.guard.SupportGuard`` (rewards/<task>/support.json): no pay off the tree's support."""
+    """DREM with ``drem.guard.SupportGuard`` (support.json beside the checkpoint): no pay off the tree's support."""
     env = _drem(False)(task, kwargs)
+    given = kwargs.get("drem_checkpoint")
     try:
-        return SupportGuard(env, load_support(drem_checkpoints.default_checkpoint(task).parent / "support.json"))
+        folder = Path(given).parent if given else drem_checkpoints.default_checkpoint(task).parent
+        return SupportGuard(env, load_support(folder / "support.json"))
     except Exception:
         env.close()
         raise
@@ -113,6 +121,7 @@ class RewardSpec:
     about: str
     make: Callable[[str, dict], gym.Env]
     stock_tasks: bool = False  # also on ManiSkill's own tasks (they have no F/T, engineered or dense of ours)
+    checkpoint: bool = False  # reads a DREM checkpoint (RLConfig.reward_checkpoint replaces the shipped one)
     learner: Optional[Callable] = None  # (env, task, seed, options, state, gym_kwargs) -> LearnedReward
 
     def supports(self, task: str) -> bool:
@@ -125,10 +134,10 @@ REWARDS: dict[str, RewardSpec] = {
     "dense": RewardSpec("the task's staged dense reward in [0, 1] (ManiSkill style)", env_reward_mode("normalized_dense")),
     "engineered": RewardSpec("-exp(kappa ||x - x_G||), the paper's Engineered", env_reward_mode("engineered")),
     "drem": RewardSpec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", _drem(False),
-                       stock_tasks=True),
+                       stock_tasks=True, checkpoint=True),
     "drem-guarded": RewardSpec("DREM scaled down where the model cannot reconstruct the state (not in the paper; "
-                               "docs/drem.md)", _drem_guarded),
-    "drem-image": RewardSpec("DREM on images only, rewards/<task>/drem_image.pt", _drem(True)),
+                               "docs/drem.md)", _drem_guarded, checkpoint=True),
+    "drem-image": RewardSpec("DREM on images only, rewards/<task>/drem_image.pt", _drem(True), checkpoint=True),
     # VICE replaces the reward; the env's sparse one is cheap and is kept in info["original_reward"].
     "vice": RewardSpec("VICE-RAQ success classifier on the images", env_reward_mode("sparse"), learner=_vice_learner),
 }

@@ -31,9 +31,14 @@ def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eva
     if not spec.supports(task):
         raise ValueError(f"on ManiSkill's own {task} the rewards are {supported_rewards(task)} "
                          f"(drem: rewards/{task}/drem.pt), not {config.reward!r}")
+    if config.reward_checkpoint and not spec.checkpoint:
+        raise ValueError(f"reward_checkpoint (--reward-checkpoint) is for the DREM rewards, not {config.reward!r}")
     obs_mode = "rgb" if config.uses_images else "state_dict"
     kwargs = dict(obs_mode=obs_mode, sim_backend=config.sim_backend, **ee_control_kwargs(task, config.env_kwargs))
-    env = spec.make(task, dict(kwargs, num_envs=1 if for_eval else config.num_envs))
+    make_kwargs = dict(kwargs, num_envs=1 if for_eval else config.num_envs)
+    if config.reward_checkpoint:
+        make_kwargs["drem_checkpoint"] = config.reward_checkpoint
+    env = spec.make(task, make_kwargs)
     if spec.learner is not None:
         if for_eval:
             env = learned.evaluation_env(env)

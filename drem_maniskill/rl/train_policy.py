@@ -204,7 +204,7 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
     learned_state = torch.load(learned_file, weights_only=True) if learned_file and learned_file.exists() else None
     env, learned = make_env(config, learned_state=learned_state)
     eval_env = make_eval_env(config, learned)
-    venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task))
+    venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success)
     try:
         if ckpt is not None:
             model = algo.load(ckpt, venv, config.device)

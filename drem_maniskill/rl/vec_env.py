@@ -23,14 +23,16 @@ class ManiSkillDictVecEnv(VecEnv):
     ManiSkill's ``ManiSkillSB3VectorEnv`` (mani_skill/vector/wrappers/sb3.py) is the model, but in
     3.0.1 it calls ``obs.cpu()`` (flat tensors only) and puts ``info["episode"]`` into every step, so
     SB3 would log each step as a finished episode. Here: dict obs, ``episode`` / ``is_success``
-    only at the end of an episode, and success does not end it (``ignore_terminations``): every
-    episode runs ``max_episode_steps`` and the reward decides how to behave after success.
+    only at the end of an episode, and by default success does not end it (``ignore_terminations``):
+    every episode runs ``max_episode_steps`` and the reward decides how to behave after success.
+    With ``terminate_on_success`` an episode ends at its first success, as a true terminal state
+    (no bootstrapping from it), the way ManiSkill's own scripts run.
     """
 
-    def __init__(self, env: gym.Env, horizon: int):
+    def __init__(self, env: gym.Env, horizon: int, terminate_on_success: bool = False):
         u = env.unwrapped
         super().__init__(u.num_envs, env.single_observation_space, u.single_action_space)
-        self._env, self.horizon = env, int(horizon)
+        self._env, self.horizon, self.terminate_on_success = env, int(horizon), bool(terminate_on_success)
         self._seed = None
         self._returns = np.zeros(self.num_envs)
         self._lengths = np.zeros(self.num_envs, dtype=int)
@@ -71,12 +73,15 @@ class ManiSkillDictVecEnv(VecEnv):
         self._success_once |= success
         done = (_to_numpy(truncated).reshape(-1) if np.ndim(_to_numpy(truncated)) else np.full(self.num_envs, bool(truncated)))
         done = done | (self._lengths >= self.horizon)
+        # Ended by success: a terminal state, whose value SB3 must not bootstrap (TimeLimit.truncated False).
+        terminal = success.astype(bool) if self.terminate_on_success else np.zeros(self.num_envs, bool)
+        done = done | terminal
         obs = _to_numpy(obs)
         infos = [{} for _ in range(self.num_envs)]
         if done.any():
             idx = np.flatnonzero(done)
             for i in idx:
-                infos[i] = {"TimeLimit.truncated": True, "is_success": bool(self._success_once[i]),
+                infos[i] = {"TimeLimit.truncated": not terminal[i], "is_success": bool(self._success_once[i]),
                             "episode": {"r": float(self._returns[i]), "l": int(self._lengths[i]),
                                         "t": round(time.time() - self.t_start, 6)},
                             "terminal_observation": {k: v[i].copy() for k, v in obs.items()}}

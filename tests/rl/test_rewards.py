@@ -61,3 +61,25 @@ def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
         env.close()
     with pytest.raises(ValueError, match=r"PlugCharger-v1 the rewards are \['sparse', 'drem'\].*'engineered'"):
         make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="engineered"))
+
+
+def test_a_run_can_name_its_own_reward_checkpoint(tmp_path):
+    """``reward_checkpoint`` (``--reward-checkpoint``) replaces the shipped one, for the DREM rewards only."""
+    import torch
+
+    from drem_maniskill.drem.checkpoint import default_checkpoint
+    from drem_maniskill.rl.run_env import make_env
+    from tests.conftest import tiny_checkpoint
+
+    ckpt = tiny_checkpoint(tmp_path / "drem.pt", "PegInHole-v1")
+    env, _ = make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=ckpt), for_eval=True)
+    try:
+        loaded = env.unwrapped.drem_reward
+        assert torch.equal(loaded.h_goal, torch.load(ckpt, weights_only=False)["weights"]["h_goal"])
+        assert default_checkpoint("PegInHole-v1") != ckpt
+    finally:
+        env.close()
+    with pytest.raises(FileNotFoundError, match=r"nowhere\.pt \(--reward-checkpoint\) not found"):
+        make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=str(tmp_path / "nowhere.pt")), for_eval=True)
+    with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):
+        make_env(RLConfig.preset("state", reward="engineered", reward_checkpoint=ckpt), for_eval=True)
