@@ -1,4 +1,4 @@
-"""SAC wall-clock per 1,000 env steps for each reward, and the reward's share of it.
+"""SAC wall-clock per 1,000 env steps for each reward, the reward's share of it, and its ratio to the env alone.
 
 For each preset and reward: build the run's env and SAC exactly as ``train-policy`` does, take
 ``--warmup`` random steps (``learning_starts``), then time ``--steps`` SAC steps (one gradient step
@@ -9,7 +9,13 @@ per env step). The reward's cost is measured two ways, printed side by side:
 * step difference: random-action env steps of this env against the same env with
   ``reward_mode="none"`` (this carries about 0.5 ms of noise per step, see docs/drem.md).
 
+``x_env`` is the run's wall time over the plain env's own stepping (``gym.make(task, obs_mode="rgb",
+reward_mode="none")``, random actions, measured in the same run): issue 13's targets are 2x for the
+``state`` preset with the drem reward and 3x for ``light``. ``grad_ms`` is SAC's gradient step
+(SB3's ``train``), per env step.
+
     .venv/bin/python bench/sac_speed.py                          # light preset, every reward
+    .venv/bin/python bench/sac_speed.py --presets state light --rewards drem  # issue 13's two ratios
     .venv/bin/python bench/sac_speed.py --presets light paper --paper-steps 20
 """
 
@@ -61,7 +67,8 @@ def random_step_ms(env, n: int) -> float:
     return 1000 * (time.perf_counter() - t) / n
 
 
-def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_steps: int, none_ms: float) -> dict:
+def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_steps: int, none_ms: float,
+            plain_ms: float) -> dict:
     """Time one reward in one preset; the numbers of one table row."""
     config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
                              reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp())
@@ -77,6 +84,7 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     venv = ManiSkillDictVecEnv(env, max_episode_steps(task))
     model = algo_spec(config.algo).build(config, venv)
     model.learn(total_timesteps=warmup)  # random actions, no gradient steps yet
+    grad_timer = model.train = Timer(model.train)
     if reward_timer is not None:
         reward_timer.total = reward_timer.calls = 0
     else:
@@ -100,6 +108,8 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     return dict(
         preset=preset, reward=reward, task=task, steps=steps,
         sac_s_per_1k=round(per_k, 1), env_steps_per_min=round(60 * steps / total, 1),
+        plain_env_s_per_1k=round(plain_ms, 2), x_env=round(per_k / plain_ms, 2),
+        grad_ms=round(1000 * grad_timer.total / steps, 2),
         env_share=round(env_time / total, 3),
         reward_s_per_1k=round(1000 * reward_time / steps, 2), reward_share=round(reward_time / total, 4),
         vice_update_s=round(vice_update_s, 3),
@@ -111,10 +121,10 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
 def main(argv=None) -> int:
     """Run the benchmark; print the table and write JSON."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--presets", nargs="+", default=["light"], choices=["light", "paper"])
+    p.add_argument("--presets", nargs="+", default=["light"], choices=["state", "light", "paper"])
     p.add_argument("--rewards", nargs="+", default=list(REWARDS))
     p.add_argument("--task", default="PegInHole-v1")
-    p.add_argument("--steps", type=int, default=300, help="timed SAC steps per reward, light preset")
+    p.add_argument("--steps", type=int, default=300, help="timed SAC steps per reward, state and light presets")
     p.add_argument("--paper-steps", type=int, default=20, help="timed SAC steps per reward, paper preset")
     p.add_argument("--warmup", type=int, default=256, help="random steps first (also the first batches)")
     p.add_argument("--env-steps", type=int, default=100, help="random env steps for the step-difference measure")
@@ -122,37 +132,44 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     import drem_maniskill  # noqa: F401
 
+    import gymnasium as gym
+
+    from drem_maniskill.rl.observation import PolicyObservation, state_parts
+
+    # The yardstick of x_env: the task's own rgb env, nothing else (ms per step = s per 1,000 steps).
+    plain = gym.make(args.task, obs_mode="rgb", reward_mode="none", sim_backend="cpu")
+    plain_ms = random_step_ms(plain, args.env_steps)
+    plain.close()
     rows = []
     for preset in args.presets:
         # The reference: the same observation pipeline with reward_mode "none".
         none_cfg = RLConfig.preset(preset, task=args.task, reward="sparse")
-        import gymnasium as gym
-
-        from drem_maniskill.rl.observation import PolicyObservation
-
-        none_env = PolicyObservation(gym.make(args.task, obs_mode="rgb", reward_mode="none", sim_backend="cpu"),
-                                     none_cfg.image_size, none_cfg.cameras, ft=True, state=none_cfg.policy_state)
+        obs_mode = "rgb" if none_cfg.uses_images else "state_dict"
+        none_env = PolicyObservation(gym.make(args.task, obs_mode=obs_mode, reward_mode="none", sim_backend="cpu"),
+                                     none_cfg.image_size, none_cfg.cameras, ft=True, state=none_cfg.policy_state,
+                                     state_keys=state_parts(none_cfg.policy_qvel, none_cfg.policy_privileged))
         none_ms = random_step_ms(none_env, args.env_steps)
         none_env.close()
-        steps = args.steps if preset == "light" else args.paper_steps
+        steps = args.paper_steps if preset == "paper" else args.steps
         for reward in args.rewards:
             try:
-                row = measure(preset, reward, args.task, steps, args.warmup, args.env_steps, none_ms)
+                row = measure(preset, reward, args.task, steps, args.warmup, args.env_steps, none_ms, plain_ms)
             except FileNotFoundError as err:  # drem-image without its checkpoint
                 print(f"{preset} {reward}: skipped: {err}", file=sys.stderr)
                 continue
             rows.append(row)
             print(json.dumps(row), flush=True)
-    head = ("preset", "reward", "sac_s_per_1k", "env_steps_per_min", "env_share", "reward_s_per_1k", "reward_share",
+    head = ("preset", "reward", "sac_s_per_1k", "x_env", "grad_ms", "env_share", "reward_s_per_1k", "reward_share",
             "step_ms", "step_ms_none", "step_diff_share")
     print("\n| " + " | ".join(head) + " |\n|" + " --- |" * len(head))
     for r in rows:
         print("| " + " | ".join(str(r[k]) for k in head) + " |")
     load = os.getloadavg()[0]
-    print(f"\ntask {args.task}, torch threads {torch.get_num_threads()}, load average {load:.2f}")
+    print(f"\ntask {args.task}: the plain rgb env steps at {plain_ms:.2f} ms (x_env's yardstick); "
+          f"torch threads {torch.get_num_threads()}, load average {load:.2f}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(dict(rows=rows, load_average=load, task=args.task), indent=2) + "\n")
+    out.write_text(json.dumps(dict(rows=rows, load_average=load, task=args.task, plain_env_ms=plain_ms), indent=2) + "\n")
     print(f"written: {out}")
     return 0
 
