@@ -84,7 +84,9 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     config_json = json.loads(json.dumps(asdict(config)))
     if state_path.exists():
         state = torch.load(state_path, map_location="cpu", weights_only=True)
-        if _resumable(json.loads(state["config"])) == _resumable(config_json) and state["dataset"] == str(Path(dataset_path).resolve()):
+        # The same file with other contents (a re-sampled tree) starts over rather than training on a mix.
+        same_data = state["dataset"] == str(Path(dataset_path).resolve()) and state.get("nodes", len(data.depth)) == len(data.depth)
+        if _resumable(json.loads(state["config"])) == _resumable(config_json) and same_data:
             model.load_state_dict(state["model"])
             opt.load_state_dict(_unflatten_opt(state["opt"]))
             gen.set_state(state["gen"])
@@ -125,7 +127,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
             writer.add_scalar("speed/samples_per_s", rate, step)
             bar.set_postfix(triplet=f"{l_triplet.item():.4f}", recon=f"{l_recon.item():.4f}", samples_s=f"{rate:.0f}")
         if step % config.save_every == 0 or step == config.iterations:
-            _save_train_state(state_path, model, opt, gen, step, config_json, dataset_path)
+            _save_train_state(state_path, model, opt, gen, step, config_json, dataset_path, len(data.depth))
     bar.close()
     writer.close()
     return export_reward(model, data, config, out / "drem.pt")
@@ -170,8 +172,8 @@ def _unflatten_opt(state: dict) -> dict:
     return {"state": {int(k): v for k, v in state["state"].items()}, "param_groups": json.loads(state["param_groups"])}
 
 
-def _save_train_state(path: Path, model, opt, gen, step, config_json, dataset_path) -> None:
+def _save_train_state(path: Path, model, opt, gen, step, config_json, dataset_path, nodes: int) -> None:
     tmp = path.with_suffix(".tmp")
     torch.save(dict(model=model.state_dict(), opt=_flatten_opt(opt.state_dict()), gen=gen.get_state(), step=step,
-                    config=json.dumps(config_json), dataset=str(Path(dataset_path).resolve())), tmp)
+                    config=json.dumps(config_json), dataset=str(Path(dataset_path).resolve()), nodes=nodes), tmp)
     os.replace(tmp, path)
