@@ -20,8 +20,18 @@ def steps_to_reach(steps: Sequence[float], values: Sequence[float], level: float
     return None
 
 
+def run_label(cfg: dict) -> str:
+    """The curve a run belongs to: its reward, and the settings that change what the reward teaches."""
+    label = cfg["reward"]
+    if cfg.get("reward_checkpoint"):
+        label += f" ({cfg['reward_checkpoint']})"
+    if cfg.get("terminate_on_success"):
+        label += ", ends at success"
+    return label
+
+
 def load_run(run_dir) -> dict:
-    """A run's config (task, reward, seed) and its evaluation rows."""
+    """A run's config (task, reward label, seed) and its evaluation rows."""
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if not cfg_path.exists():
@@ -30,11 +40,11 @@ def load_run(run_dir) -> dict:
     rows = read_eval_csv(run_dir / "eval.csv")
     if not rows:
         raise ValueError(f"{run_dir}/eval.csv holds no evaluations yet")
-    return dict(run_dir=str(run_dir), task=cfg["task"], reward=cfg["reward"], seed=cfg.get("seed"), rows=rows)
+    return dict(run_dir=str(run_dir), task=cfg["task"], reward=run_label(cfg), seed=cfg.get("seed"), rows=rows)
 
 
 def aggregate(runs: list[dict]) -> dict:
-    """Per (task, reward): the seeds' curves on their common evaluation steps; mean, min, max, std."""
+    """Per (task, reward label): the seeds' curves on their common evaluation steps; mean, min, max, std."""
     groups = defaultdict(list)
     for run in runs:
         groups[(run["task"], run["reward"])].append(run)

@@ -70,3 +70,15 @@ def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
     summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
     assert {row["reward"] for row in summary["rows"]} == {"sparse", "engineered"}
     assert (tmp_path / "comparison-PegInHole-v1" / "comparison.png").stat().st_size > 10_000
+
+
+def test_runs_that_end_at_success_or_use_another_checkpoint_are_curves_of_their_own(tmp_path):
+    plain = _fake_run(tmp_path, "PegInHole-v1", "engineered", 0, [0.0, 0.2, 0.4])
+    ended = _fake_run(tmp_path / "t", "PegInHole-v1", "engineered", 0, [0.0, 0.6, 1.0])
+    own = _fake_run(tmp_path / "c", "PegInHole-v1", "drem", 0, [0.0, 0.0, 0.0])
+    for run, extra in ((ended, dict(terminate_on_success=True)), (own, dict(reward_checkpoint="out/reward/drem.pt"))):
+        cfg = json.loads((run / "config.json").read_text())
+        (run / "config.json").write_text(json.dumps({**cfg, **extra}))
+    table = {r["reward"]: r for r in compare_runs([plain, ended, own], str(tmp_path / "cmp"))["rows"]}
+    assert set(table) == {"engineered", "engineered, ends at success", "drem (out/reward/drem.pt)"}
+    assert table["engineered, ends at success"]["steps_to_50"] == 1000 and table["engineered"]["steps_to_50"] == "not reached"
