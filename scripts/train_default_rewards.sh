@@ -2,12 +2,13 @@
 # Makes the shipped reward checkpoints rewards/<task>/drem.pt and the image-only baseline
 # rewards/<task>/drem_image.pt (same tree, --modalities fixed wrist), as their model cards say:
 # the scripted expert's demo (seed 1000), a tree of M=500 children per depth whose random
-# actions follow the expert's own step (STEP_SCALE times it; docs/drem.md), 20k iterations at
+# actions follow the expert's own step (STEP_SCALE times it; docs/drem.md), continued OUTWARD
+# depths past the start region away from the expert's path (not in the paper; docs/drem.md), 20k iterations at
 # 64 px (the paper: 128 px on a GPU), the examination on held-out seeds 0-19. Each stage resumes
 # after an interruption: rerun the same command.
 #   bash scripts/train_default_rewards.sh [TASK ...]      (default: every task of drem_maniskill.envs.TASKS)
-# M, ITERS, STEP_SCALE (0: the paper's fixed action range) and EPISODES (held-out examination
-# seeds) override the scale; IMAGE_BASELINE=0 skips
+# M, ITERS, STEP_SCALE (0: the paper's fixed action range), OUTWARD (0: the paper's tree) and
+# EPISODES (held-out examination seeds) override the scale; IMAGE_BASELINE=0 skips
 # the image-only baseline (scripts/train_stock_rewards.sh, whose tasks have no F/T anyway).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -15,6 +16,7 @@ BIN=.venv/bin/drem-maniskill
 M=${M:-500}
 ITERS=${ITERS:-20000}
 STEP_SCALE=${STEP_SCALE:-4}
+OUTWARD=${OUTWARD:-10}
 EPISODES=${EPISODES:-20}
 IMAGE_BASELINE=${IMAGE_BASELINE:-1}
 tasks=("$@")
@@ -22,7 +24,7 @@ tasks=("$@")
 for task in "${tasks[@]}"; do
   out=outputs/default/$task
   [ -f "$out/expert/expert.h5" ] || $BIN record-expert --task "$task" --seed 1000 --episodes 1 --out "$out/expert"
-  [ -f "$out/tree.h5" ] || $BIN sample --expert "$out/expert/expert.h5" --out "$out/tree.h5" --num-children "$M" --expert-step-scale "$STEP_SCALE"
+  [ -f "$out/tree.h5" ] || $BIN sample --expert "$out/expert/expert.h5" --out "$out/tree.h5" --num-children "$M" --expert-step-scale "$STEP_SCALE" --outward-depth "$OUTWARD"
   $BIN train-reward --dataset "$out/tree.h5" --out "$out/reward" --preset quick --iterations "$ITERS" --threads 1
   # Quality on held-out seeds 0-19 (the expert demo used seed 1000).
   $BIN examine --task "$task" --checkpoint "$out/reward/drem.pt" --out "$out/examination" --episodes "$EPISODES"
