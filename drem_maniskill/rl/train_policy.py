@@ -40,13 +40,19 @@ RESUMABLE_FIELDS = ("steps", "out", "eval_every", "threads", "device")
 
 
 # ---------------------------------------------------------------------------- evaluation
-def evaluate_policy(model, env, seeds: Sequence[int], horizon: int) -> dict:
-    """Deterministic policy on each seed for ``horizon`` steps: success rate (success at any step) and mean return."""
+def deterministic_policy(model):
+    """``policy(obs) -> action`` of an SB3 model on our dict observations (torch in, torch out), for ``rollout``."""
 
     def act(obs):
         action, _ = model.predict({k: v.cpu().numpy() for k, v in obs.items()}, deterministic=True)
         return torch.as_tensor(action, dtype=torch.float32)
 
+    return act
+
+
+def evaluate_policy(model, env, seeds: Sequence[int], horizon: int) -> dict:
+    """Deterministic policy on each seed for ``horizon`` steps: success rate (success at any step) and mean return."""
+    act = deterministic_policy(model)
     episodes = [rollout(env, act, int(seed), horizon, stop_on_success=False) for seed in seeds]
     return dict(success_rate=float(np.mean([ep.success for ep in episodes])),
                 mean_return=float(np.mean([ep.ret for ep in episodes])))
