@@ -102,6 +102,7 @@ HOLD_POSITIONS = {
     "25 mm down, 45 mm beside": (0.0, -0.045, -0.025),
 }
 FLOOR_BESIDE = 0.075  # m from the axis: clear of both sockets' blocks on the way down
+FLOOR_POSITION = f"pressed on the floor, {FLOOR_BESIDE * 1000:.0f} mm beside"
 
 
 def hold_targets(env) -> dict:
@@ -112,7 +113,7 @@ def hold_targets(env) -> dict:
     which those rewards paid about as much as an insertion.
     """
     floor = -(float(env.unwrapped.socket_height) + PRESS_DEPTH)
-    return {**HOLD_POSITIONS, f"pressed on the floor, {FLOOR_BESIDE * 1000:.0f} mm beside": (0.0, -FLOOR_BESIDE, floor)}
+    return {**HOLD_POSITIONS, FLOOR_POSITION: (0.0, -FLOOR_BESIDE, floor)}
 
 
 HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
@@ -242,9 +243,8 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         held_positions={k: {m: v[m] for m in ("mean", "std", "reached_error_mm")} for k, v in held.items()},
         inserted_reward_std=held["inserted"]["std"] if held else None,
         # What a policy gains by pressing the part on the floor instead of inserting it (the trap SAC found).
-        floor_beside_over_inserted=(held[floor_key]["mean"] / held["inserted"]["mean"]
-                                    if (floor_key := next((k for k in held if k.startswith("pressed on the floor")), None))
-                                    and held["inserted"]["mean"] else None),
+        floor_beside_over_inserted=(held[FLOOR_POSITION]["mean"] / held["inserted"]["mean"]
+                                    if FLOOR_POSITION in held and held["inserted"]["mean"] else None),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],

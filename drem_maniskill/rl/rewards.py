@@ -88,10 +88,9 @@ def _drem(image_only: bool) -> Callable:
 def _drem_guarded(task: str, kwargs: dict) -> gym.Env:
     """DREM with ``drem.guard.SupportGuard`` (support.json beside the checkpoint): no pay off the tree's support."""
     env = _drem(False)(task, kwargs)
-    given = kwargs.get("drem_checkpoint")
     try:
-        folder = Path(given).parent if given else drem_checkpoints.default_checkpoint(task).parent
-        return SupportGuard(env, load_support(folder / "support.json"))
+        checkpoint = drem_checkpoints.resolve_checkpoint(task, kwargs.get("drem_checkpoint"))
+        return SupportGuard(env, load_support(checkpoint.parent / "support.json"))
     except Exception:
         env.close()
         raise
