@@ -18,7 +18,7 @@ from typing import Any, Optional
 import torch
 
 from drem_maniskill.drem.checkpoint import resolve_checkpoint
-from drem_maniskill.drem.reward import DREMReward
+from drem_maniskill.drem.reward import DREMReward, apply_form, check_form
 
 
 class UnsupportedModeError(NotImplementedError, ValueError):
@@ -26,17 +26,23 @@ class UnsupportedModeError(NotImplementedError, ValueError):
 
 
 class DREMRewardMode:
-    """Mixin for a ManiSkill ``BaseEnv`` subclass: the ``drem`` reward mode and the ``drem_checkpoint`` kwarg."""
+    """Mixin for a ManiSkill ``BaseEnv`` subclass: the ``drem`` reward mode, the ``drem_checkpoint`` and ``drem_form`` kwargs.
+
+    ``drem_form`` (``drem.reward.DREM_FORMS``): ``"paper"`` pays ``R(s)``, ``"shifted"`` ``R(s) - 1``
+    (never positive: safe where success ends the episode).
+    """
 
     env_id: str = ""  # the registered id a checkpoint's header must name
 
-    def __init__(self, *args, reward_mode: Optional[str] = None, drem_checkpoint: Optional[str] = None, **kwargs):
+    def __init__(self, *args, reward_mode: Optional[str] = None, drem_checkpoint: Optional[str] = None,
+                 drem_form: str = "paper", **kwargs):
         if reward_mode is not None and reward_mode not in self.SUPPORTED_REWARD_MODES:
             raise UnsupportedModeError(
                 f"Unknown reward_mode {reward_mode!r} for {type(self).__name__}. "
                 f"Choose one of {list(self.SUPPORTED_REWARD_MODES)}, e.g. gym.make(..., reward_mode='dense')."
             )
         self.drem_checkpoint = drem_checkpoint
+        self.drem_form = check_form(drem_form)
         self.drem_reward: Optional[DREMReward] = None
         super().__init__(*args, reward_mode=reward_mode, **kwargs)
         if self.reward_mode == "drem":
@@ -44,8 +50,8 @@ class DREMRewardMode:
             self.drem_reward = DREMReward.from_checkpoint(str(path), env=self)
 
     def compute_drem_reward(self, obs: Any, action: torch.Tensor, info: dict) -> torch.Tensor:
-        """DREM task progress ``R(s)`` (Eq. 2) of the current state, ``[num_envs]``."""
-        return self.drem_reward.reward(self, obs)
+        """DREM task progress ``R(s)`` (Eq. 2) of the current state, ``[num_envs]``, in the env's ``drem_form``."""
+        return apply_form(self.drem_reward.reward(self, obs), self.drem_form)
 
     def get_reward(self, obs: Any, action: torch.Tensor, info: dict):
         """``compute_drem_reward`` when ``reward_mode="drem"``, else the task's own reward."""

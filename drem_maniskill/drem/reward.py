@@ -29,6 +29,27 @@ from drem_maniskill.utils.cameras import camera_images
 
 _VERSION = operator.attrgetter("_version")
 
+# What an env pays for R(s) (``drem_form``): the paper's R itself, or R - 1, which is <= 0 and 0
+# only at the goal. Under episodes that end at success a positive per-step reward pays an agent
+# for not finishing (every step it stays collects more); with R - 1 every step before the goal
+# costs and ending the episode costs nothing, as with the Engineered reward. Same ordering of
+# states; without termination the two give the same optimal policy.
+DREM_FORMS = {"paper": 0.0, "shifted": -1.0}
+
+
+def check_form(form: str) -> str:
+    """``form`` if it is a key of ``DREM_FORMS``, else a ValueError naming the choices."""
+    if form not in DREM_FORMS:
+        raise ValueError(f"unknown drem_form {form!r}; choose one of {list(DREM_FORMS)} "
+                         "('shifted': R - 1, for episodes that end at success)")
+    return form
+
+
+def apply_form(reward: torch.Tensor, form: str) -> torch.Tensor:
+    """``reward`` as ``form`` pays it (``DREM_FORMS``)."""
+    offset = DREM_FORMS[form]
+    return reward + offset if offset else reward
+
 
 class DREMReward(nn.Module):
     """Task progress reward from a DREM checkpoint; call with an observation batch."""

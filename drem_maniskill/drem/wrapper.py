@@ -13,19 +13,20 @@ from __future__ import annotations
 import gymnasium as gym
 import torch
 
-from drem_maniskill.drem.reward import DREMReward
+from drem_maniskill.drem.reward import DREMReward, apply_form, check_form
 
 
 class DREMRewardWrapper(gym.Wrapper):
-    """Replace a ManiSkill env's reward with a DREM reward; the old one goes to ``info``."""
+    """Replace a ManiSkill env's reward with a DREM reward (``form``: ``drem.reward.DREM_FORMS``); the old one goes to ``info``."""
 
-    def __init__(self, env: gym.Env, checkpoint: str):
+    def __init__(self, env: gym.Env, checkpoint: str, form: str = "paper"):
         super().__init__(env)
+        self.form = check_form(form)
         self.reward_model = DREMReward.from_checkpoint(str(checkpoint), env=env)
 
     def reward(self, obs) -> torch.Tensor:
-        """DREM reward ``[num_envs]`` of the env's current state."""
-        return self.reward_model.reward(self.env, obs)
+        """DREM reward ``[num_envs]`` of the env's current state, in this wrapper's form."""
+        return apply_form(self.reward_model.reward(self.env, obs), self.form)
 
     def step(self, action):
         """Step the env; reward replaced by DREM, original kept in ``info["original_reward"]``."""

@@ -25,7 +25,9 @@ def _cmd_train_policy(args) -> None:
                                        sim_backend=args.sim_backend, learning_starts=args.learning_starts,
                                        batch_size=args.batch_size, device=args.device,
                                        reward_checkpoint=args.reward_checkpoint,
-                                       terminate_on_success=args.terminate_on_success).items() if v is not None}
+                                       terminate_on_success=args.terminate_on_success, obs_norm=args.obs_norm,
+                                       action_scale=args.action_scale, gamma=args.gamma,
+                                       gradient_steps=args.gradient_steps, drem_form=args.drem_form).items() if v is not None}
     config = RLConfig.preset(args.preset, task=args.task, reward=args.reward, algo=args.algo, seed=args.seed, **overrides)
     print(f"policy config: {json.dumps(config.to_dict())}")
     result = train_policy(config)
@@ -59,6 +61,13 @@ def add_subcommands(sub) -> None:
     p.add_argument("--reward-checkpoint", help="drem rewards: this DREM checkpoint instead of the shipped rewards/<task>/drem.pt")
     p.add_argument("--terminate-on-success", action=argparse.BooleanOptionalAction, default=None,
                    help="end a training episode at its first success (default: off, episodes run to the time limit)")
+    p.add_argument("--drem-form", choices=["paper", "shifted"],
+                   help="drem rewards: paper pays R, shifted R - 1 (<= 0; for --terminate-on-success) (default: paper)")
+    p.add_argument("--obs-norm", nargs="*", choices=["state", "ft"],
+                   help="normalise these policy inputs by running statistics (default: the preset's; none: --obs-norm)")
+    p.add_argument("--action-scale", type=float, help="the policy's full range as a fraction of the controller's (default: 1)")
+    p.add_argument("--gamma", type=float, help="discount (default: the preset's, 0.95)")
+    p.add_argument("--gradient-steps", type=int, help="SAC gradient steps per env step (default: 1)")
     p.add_argument("--learning-starts", type=int)
     p.add_argument("--batch-size", type=int)
     p.add_argument("--num-envs", type=int, help="parallel envs (GPU sim)")

@@ -23,7 +23,8 @@ def policy_kwargs(config) -> dict:
     return dict(
         features_extractor_class=MultimodalExtractor,
         features_extractor_kwargs=dict(cnn_channels=config.cnn_channels, camera_features=config.camera_features,
-                                       ft_features=config.ft_features),
+                                       ft_features=config.ft_features,
+                                       normalize=config.normalized_inputs),
         net_arch=list(config.net_arch), share_features_extractor=config.share_features_extractor,
     )
 

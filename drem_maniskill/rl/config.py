@@ -32,6 +32,8 @@ class RLConfig:
     policy_state: bool = True  # qpos (9) + tcp pose (7)
     policy_qvel: bool = False  # + joint velocities (9)
     policy_privileged: bool = False  # + the socket's pose (7): the task's object pose, as ManiSkill's state obs
+    obs_norm: tuple = ()  # vector inputs ("state", "ft") normalised by running statistics in the network
+    action_scale: float = 1.0  # the policy's [-1, 1] is this fraction of the controller's range (2 cm, 0.1 rad per step)
 
     # --- the policy network (SB3 MultiInputPolicy with our extractor)
     cnn_channels: tuple = (16, 32, 32)  # stride-2 convs per camera
@@ -68,6 +70,7 @@ class RLConfig:
     # goal_seeds: expert episodes, seeds 0..n-1, whose successful images are the goals; default 10)
     reward_kwargs: dict = field(default_factory=dict)
     reward_checkpoint: Optional[str] = None  # the DREM rewards: this checkpoint instead of rewards/<task>/drem.pt
+    drem_form: str = "paper"  # the DREM rewards: "paper" pays R, "shifted" R - 1 (drem.reward.DREM_FORMS)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "RLConfig":
@@ -99,8 +102,15 @@ class RLConfig:
         if not isinstance(self.preset, str):
             # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light".
             self.preset = "light"
-        for key in ("cameras", "cnn_channels", "net_arch"):
+        for key in ("cameras", "cnn_channels", "net_arch", "obs_norm"):
             setattr(self, key, tuple(getattr(self, key)))
+        if set(self.obs_norm) - {"state", "ft"}:
+            raise ValueError(f"obs_norm takes 'state' and 'ft', got {list(self.obs_norm)}")
+        from drem_maniskill.drem.reward import check_form
+
+        check_form(self.drem_form)
+        if not 0 < self.action_scale <= 1:
+            raise ValueError(f"action_scale must be in (0, 1], got {self.action_scale}")
         if 128 % self.image_size:
             raise ValueError(f"image_size must divide the 128 px render (8, 16, 32, 64, 128), got {self.image_size}")
 
@@ -118,6 +128,12 @@ class RLConfig:
         if not is_insertion_task(self.task):
             return False
         return self.reward == "drem" if self.policy_ft is None else bool(self.policy_ft)
+
+    @property
+    def normalized_inputs(self) -> tuple:
+        """The policy inputs of ``obs_norm`` that the policy actually gets."""
+        present = {"state": self.policy_state, "ft": self.uses_ft}
+        return tuple(k for k in self.obs_norm if present[k])
 
     @property
     def run_dir(self) -> Path:

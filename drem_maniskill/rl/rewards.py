@@ -58,6 +58,7 @@ def _drem(image_only: bool) -> Callable:
     def make(task: str, kwargs: dict) -> gym.Env:
         kwargs = dict(kwargs)
         given = kwargs.pop("drem_checkpoint", None)
+        form = kwargs.pop("drem_form", "paper")
         path = Path(given) if given else drem_checkpoints.default_checkpoint(task, image_only=image_only)
         if given and not path.exists():
             raise FileNotFoundError(f"reward checkpoint {path} (--reward-checkpoint) not found; make one with "
@@ -74,10 +75,10 @@ def _drem(image_only: bool) -> Callable:
                                     + ("scripts/train_default_rewards.sh" if is_insertion_task(task)
                                        else f"scripts/train_stock_rewards.sh {task}"))
         if is_insertion_task(task):
-            return gym.make(task, reward_mode="drem", drem_checkpoint=str(path), **kwargs)
+            return gym.make(task, reward_mode="drem", drem_checkpoint=str(path), drem_form=form, **kwargs)
         env = gym.make(task, reward_mode="sparse", **kwargs)
         try:
-            return DREMRewardWrapper(env, str(path))
+            return DREMRewardWrapper(env, str(path), form=form)
         except Exception:
             env.close()
             raise
@@ -87,6 +88,9 @@ def _drem(image_only: bool) -> Callable:
 
 def _drem_guarded(task: str, kwargs: dict) -> gym.Env:
     """DREM with ``drem.guard.SupportGuard`` (support.json beside the checkpoint): no pay off the tree's support."""
+    if kwargs.get("drem_form", "paper") != "paper":
+        # The guard scales the reward towards 0, which raises a negative (shifted) reward instead of cutting it.
+        raise ValueError("drem-guarded pays only the paper's form of R; use --drem-form paper, or the drem reward")
     env = _drem(False)(task, kwargs)
     try:
         checkpoint = drem_checkpoints.resolve_checkpoint(task, kwargs.get("drem_checkpoint"))

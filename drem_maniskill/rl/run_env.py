@@ -38,12 +38,20 @@ def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eva
     make_kwargs = dict(kwargs, num_envs=1 if for_eval else config.num_envs)
     if config.reward_checkpoint:
         make_kwargs["drem_checkpoint"] = config.reward_checkpoint
+    if config.drem_form != "paper":
+        if not spec.checkpoint:
+            raise ValueError(f"drem_form (--drem-form) is for the DREM rewards, not {config.reward!r}")
+        make_kwargs["drem_form"] = config.drem_form
     env = spec.make(task, make_kwargs)
     if spec.learner is not None:
         if for_eval:
             env = learned.evaluation_env(env)
         else:
             env = learned = spec.learner(env, task, config.seed, config.reward_kwargs, learned_state, kwargs)
+    if config.action_scale != 1.0:
+        # The policy's full range becomes a fraction of the controller's: finer steps for the same squashed output.
+        scale = float(config.action_scale)
+        env = gym.wrappers.TransformAction(env, lambda a: a * scale, env.action_space)
     if not config.uses_images:
         cameras = ()
     else:

@@ -58,3 +58,74 @@ def test_state_preset_sees_no_image_and_nothing_a_reward_is_computed_from():
     assert RLConfig.preset("paper", reward="drem").uses_images and RLConfig.preset("light").uses_images
     assert [RLConfig.preset("paper", reward=r).uses_ft for r in ("drem", "drem-image", "engineered", "sparse", "vice")] == [
         True, False, False, False, False]
+
+
+def test_running_norm_learns_the_statistics_in_training_and_keeps_them_in_evaluation():
+    """``obs_norm``: inputs of any scale come out about zero-mean, unit-variance; evaluation does not move the statistics."""
+    import torch
+
+    from drem_maniskill.rl.policy import RunningNorm
+
+    torch.manual_seed(0)
+    norm = RunningNorm((3,))
+    scale, shift = torch.tensor([0.001, 1.0, 100.0]), torch.tensor([0.5, -2.0, 30.0])
+    for _ in range(50):
+        norm(torch.randn(256, 3) * scale + shift)
+    out = norm(torch.randn(4096, 3) * scale + shift)
+    torch.testing.assert_close(out.mean(0), torch.zeros(3), atol=0.05, rtol=0)
+    torch.testing.assert_close(out.std(0), torch.ones(3), atol=0.05, rtol=0)
+    norm.eval()
+    before = norm.running_mean.clone()
+    norm(torch.full((8, 3), 1e6))
+    assert torch.equal(norm.running_mean, before)
+    assert norm(torch.full((1, 3), 1e6)).max() == norm.clip  # clipped, not exploding
+
+
+def test_obs_norm_and_action_scale_reach_the_policy_and_the_controller():
+    """``--obs-norm`` puts a RunningNorm before the named inputs (and copies it to the critic's target);
+    ``--action-scale s`` makes the policy's full action a fraction s of the controller's step."""
+    import numpy as np
+    import pytest
+    import torch
+
+    from drem_maniskill.rl.algos import build_sac
+    from drem_maniskill.rl.policy import RunningNorm
+    from drem_maniskill.rl.run_env import make_env
+    from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv
+
+    moved = {}
+    for scale in (1.0, 0.25):
+        env, _ = make_env(RLConfig.preset("state", reward="engineered", action_scale=scale), for_eval=True)
+        try:
+            env.reset(seed=2)
+            start = env.unwrapped.agent.tcp.pose.p.clone()
+            for _ in range(2):
+                env.step(torch.tensor([[1.0, 0, 0, 0, 0, 0]]))
+            moved[scale] = float((env.unwrapped.agent.tcp.pose.p - start)[0, 0])
+        finally:
+            env.close()
+    assert moved[1.0] > 0.02  # two full steps of up to 2 cm
+    assert moved[0.25] == pytest.approx(moved[1.0] / 4, rel=0.15)
+
+    config = RLConfig.preset("state", reward="engineered", obs_norm=("state", "ft"), steps=300)
+    env, _ = make_env(config)
+    venv = ManiSkillDictVecEnv(env, 50)
+    try:
+        model = build_sac(config, venv)
+        norms = {name: m for name, m in model.policy.named_modules() if isinstance(m, RunningNorm)}
+        assert {n.rsplit(".", 3)[0] for n in norms} == {"actor.features_extractor", "critic.features_extractor",
+                                                        "critic_target.features_extractor"}
+        assert len(norms) == 6  # state and ft in each
+        model.learning_starts = 50
+        model.learn(120)
+        critic = dict(model.critic.named_buffers())
+        target = dict(model.critic_target.named_buffers())
+        mean = critic["features_extractor.encoders.state.0.running_mean"]
+        assert not np.allclose(mean.numpy(), 0)  # it learnt the qpos, tcp and socket statistics
+        torch.testing.assert_close(target["features_extractor.encoders.state.0.running_mean"], mean)
+    finally:
+        venv.close()
+    with pytest.raises(ValueError, match="obs_norm takes 'state' and 'ft'"):
+        RLConfig.preset("state", obs_norm=("fixed_camera",))
+    with pytest.raises(ValueError, match=r"action_scale must be in \(0, 1\]"):
+        RLConfig.preset("state", action_scale=0)

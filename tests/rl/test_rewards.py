@@ -83,3 +83,31 @@ def test_a_run_can_name_its_own_reward_checkpoint(tmp_path):
         make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=str(tmp_path / "nowhere.pt")), for_eval=True)
     with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):
         make_env(RLConfig.preset("state", reward="engineered", reward_checkpoint=ckpt), for_eval=True)
+
+
+def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mislead(tmp_path):
+    """``drem_form="shifted"`` (``--drem-form``) pays R - 1 for the same state; the guard and non-DREM rewards refuse it."""
+    import torch
+
+    from drem_maniskill.rl.run_env import make_env
+    from tests.conftest import tiny_checkpoint
+
+    ckpt = tiny_checkpoint(tmp_path / "drem.pt", "PegInHole-v1")
+    rewards = {}
+    for form in ("paper", "shifted"):
+        env, _ = make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=ckpt, drem_form=form), for_eval=True)
+        try:
+            env.reset(seed=5)
+            action = torch.zeros(1, 6)
+            action[0, 2] = -0.5
+            rewards[form] = torch.stack([env.step(action)[1] for _ in range(3)])
+        finally:
+            env.close()
+    torch.testing.assert_close(rewards["shifted"], rewards["paper"] - 1.0)
+    assert (rewards["shifted"] <= 0).all()
+    with pytest.raises(ValueError, match="unknown drem_form 'negative'.*'paper', 'shifted'"):
+        RLConfig.preset("state", drem_form="negative")
+    with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):
+        make_env(RLConfig.preset("state", reward="engineered", drem_form="shifted"), for_eval=True)
+    with pytest.raises(ValueError, match="drem-guarded pays only the paper's form"):
+        make_env(RLConfig.preset("state", reward="drem-guarded", reward_checkpoint=ckpt, drem_form="shifted"), for_eval=True)
