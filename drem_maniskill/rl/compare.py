@@ -25,8 +25,14 @@ def run_label(cfg: dict) -> str:
     label = cfg["reward"]
     if cfg.get("reward_checkpoint"):
         label += f" ({cfg['reward_checkpoint']})"
+    if cfg.get("drem_form", "paper") != "paper":
+        label += f", {cfg['drem_form']}"
     if cfg.get("terminate_on_success"):
         label += ", ends at success"
+    if cfg.get("obs_norm"):
+        label += ", norm " + "+".join(cfg["obs_norm"])
+    if cfg.get("action_scale", 1.0) != 1.0:
+        label += f", actions x{cfg['action_scale']:g}"
     return label
 
 

@@ -76,9 +76,13 @@ def test_runs_that_end_at_success_or_use_another_checkpoint_are_curves_of_their_
     plain = _fake_run(tmp_path, "PegInHole-v1", "engineered", 0, [0.0, 0.2, 0.4])
     ended = _fake_run(tmp_path / "t", "PegInHole-v1", "engineered", 0, [0.0, 0.6, 1.0])
     own = _fake_run(tmp_path / "c", "PegInHole-v1", "drem", 0, [0.0, 0.0, 0.0])
-    for run, extra in ((ended, dict(terminate_on_success=True)), (own, dict(reward_checkpoint="out/reward/drem.pt"))):
+    tuned = _fake_run(tmp_path / "k", "PegInHole-v1", "drem", 0, [0.0, 0.1, 0.1])
+    knobs = dict(drem_form="shifted", terminate_on_success=True, obs_norm=["state", "ft"], action_scale=0.5)
+    for run, extra in ((ended, dict(terminate_on_success=True)), (own, dict(reward_checkpoint="out/reward/drem.pt")),
+                       (tuned, knobs)):
         cfg = json.loads((run / "config.json").read_text())
         (run / "config.json").write_text(json.dumps({**cfg, **extra}))
-    table = {r["reward"]: r for r in compare_runs([plain, ended, own], str(tmp_path / "cmp"))["rows"]}
-    assert set(table) == {"engineered", "engineered, ends at success", "drem (out/reward/drem.pt)"}
+    table = {r["reward"]: r for r in compare_runs([plain, ended, own, tuned], str(tmp_path / "cmp"))["rows"]}
+    assert set(table) == {"engineered", "engineered, ends at success", "drem (out/reward/drem.pt)",
+                          "drem, shifted, ends at success, norm state+ft, actions x0.5"}
     assert table["engineered, ends at success"]["steps_to_50"] == 1000 and table["engineered"]["steps_to_50"] == "not reached"
