@@ -25,8 +25,10 @@ def run_label(cfg: dict) -> str:
     label = cfg["reward"]
     if cfg.get("reward_checkpoint"):
         label += f" ({cfg['reward_checkpoint']})"
-    if cfg.get("drem_form", "paper") != "paper":
-        label += f", {cfg['drem_form']}"
+    # As RLConfig.drem_form_used: an unset form is "shifted" where episodes end at success.
+    form = cfg.get("drem_form") or ("shifted" if cfg.get("terminate_on_success") else "paper")
+    if cfg["reward"].startswith("drem") and form != "paper":
+        label += f", {form}"
     if cfg.get("terminate_on_success"):
         label += ", ends at success"
     if cfg.get("obs_norm"):

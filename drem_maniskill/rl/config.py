@@ -70,7 +70,9 @@ class RLConfig:
     # goal_seeds: expert episodes, seeds 0..n-1, whose successful images are the goals; default 10)
     reward_kwargs: dict = field(default_factory=dict)
     reward_checkpoint: Optional[str] = None  # the DREM rewards: this checkpoint instead of rewards/<task>/drem.pt
-    drem_form: str = "paper"  # the DREM rewards: "paper" pays R, "shifted" R - 1 (drem.reward.DREM_FORMS)
+    # The DREM rewards: "paper" pays R, "shifted" R - 1 (drem.reward.DREM_FORMS); None: "shifted" when
+    # episodes end at success (a positive reward would pay for not finishing), else "paper".
+    drem_form: Optional[str] = None
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "RLConfig":
@@ -81,9 +83,12 @@ class RLConfig:
         if name == "state":
             # Reward studies: proprioception, the F/T history and the socket's pose, no image (the reward
             # may still read the cameras: DREM renders its own). Nothing derived from a reward.
+            # Episodes end at success, inputs normalised, half the action range: measured in docs/rl.md
+            # (issue 13, item 3), the setting where SAC learns the peg with engineered in all three seeds.
             base.update(
                 cameras=(), policy_ft=True, policy_state=True, policy_qvel=True, policy_privileged=True,
                 steps=50_000, buffer_size=100_000, batch_size=256, learning_starts=1_000, eval_every=2_500,
+                terminate_on_success=True, obs_norm=("state", "ft"), action_scale=0.5,
             )
         elif name == "paper":
             # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
@@ -108,7 +113,8 @@ class RLConfig:
             raise ValueError(f"obs_norm takes 'state' and 'ft', got {list(self.obs_norm)}")
         from drem_maniskill.drem.reward import check_form
 
-        check_form(self.drem_form)
+        if self.drem_form is not None:
+            check_form(self.drem_form)
         if not 0 < self.action_scale <= 1:
             raise ValueError(f"action_scale must be in (0, 1], got {self.action_scale}")
         if 128 % self.image_size:
@@ -128,6 +134,13 @@ class RLConfig:
         if not is_insertion_task(self.task):
             return False
         return self.reward == "drem" if self.policy_ft is None else bool(self.policy_ft)
+
+    @property
+    def drem_form_used(self) -> str:
+        """The DREM form the run pays (``drem_form``, or by ``terminate_on_success`` when it is None)."""
+        if self.drem_form is not None:
+            return self.drem_form
+        return "shifted" if self.terminate_on_success else "paper"
 
     @property
     def normalized_inputs(self) -> tuple:

@@ -38,10 +38,10 @@ def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eva
     make_kwargs = dict(kwargs, num_envs=1 if for_eval else config.num_envs)
     if config.reward_checkpoint:
         make_kwargs["drem_checkpoint"] = config.reward_checkpoint
-    if config.drem_form != "paper":
-        if not spec.checkpoint:
-            raise ValueError(f"drem_form (--drem-form) is for the DREM rewards, not {config.reward!r}")
-        make_kwargs["drem_form"] = config.drem_form
+    if spec.checkpoint:
+        make_kwargs["drem_form"] = config.drem_form_used
+    elif config.drem_form not in (None, "paper"):
+        raise ValueError(f"drem_form (--drem-form) is for the DREM rewards, not {config.reward!r}")
     env = spec.make(task, make_kwargs)
     if spec.learner is not None:
         if for_eval:
