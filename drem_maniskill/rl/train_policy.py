@@ -181,6 +181,11 @@ class RunCallback(BaseCallback):
 
 
 # ---------------------------------------------------------------------------- training
+def resume_seed(seed: int, steps: int) -> int:
+    """The env seed of a run resumed at ``steps``: new for every resume point, within numpy's 0..2**32 - 1."""
+    return (int(seed) + 1_000_003 * int(steps)) % 2**32
+
+
 def _check_resumable(saved: RLConfig, config: RLConfig) -> None:
     diff = {k: (v, getattr(config, k)) for k, v in saved.to_dict().items()
             if k not in RESUMABLE_FIELDS and v != config.to_dict()[k]}
@@ -216,7 +221,7 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
             model = algo.load(ckpt, venv, config.device)
             model._last_obs = None  # the env was rebuilt: start a fresh episode rather than trust a stale obs
             # A new seed for the resumed env's episodes (the same one would replay the first episodes).
-            venv.seed(config.seed + 1_000_003 * model.num_timesteps)
+            venv.seed(resume_seed(config.seed, model.num_timesteps))
         else:
             model = algo.build(config, venv)
         start = model.num_timesteps

@@ -60,3 +60,16 @@ def test_interrupted_run_resumes_from_its_checkpoint(tmp_path):
     assert result["resumed_from"] == 32 and result["steps"] == 64
     assert [r["steps"] for r in read_eval_csv(tmp_path / "run" / "eval.csv")] == [0, 32, 64]
     assert (tmp_path / "run" / "sb3" / "from32" / "progress.csv").exists()
+
+
+def test_a_run_resumed_late_gets_a_seed_numpy_accepts():
+    """Resuming at 30,000 steps once asked numpy for seed 3e10 and failed; each resume point still gets its own seed."""
+    import numpy as np
+
+    from drem_maniskill.rl.train_policy import resume_seed
+
+    seeds = [resume_seed(s, steps) for s in (0, 2) for steps in (32, 2_500, 30_000, 150_000)]
+    for seed in seeds:
+        np.random.default_rng(seed)
+        assert 0 <= seed < 2**32
+    assert len(set(seeds)) == len(seeds)
