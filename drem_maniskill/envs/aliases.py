@@ -5,8 +5,9 @@ ManiSkill's baselines (``ppo.py``, ``ppo_cpu.py``, ``sac.py``) and its benchmark
 make that default DREM:
 
 * ``PegInHole-DREM-v1``, ``USBInsertion-DREM-v1`` (one per task of ``envs.TASKS``): our tasks with ``reward_mode="drem"`` by
-  default and the shipped checkpoint (``drem_checkpoint=`` picks another); every other reward
-  mode stays available;
+  default and the shipped checkpoint (``drem_checkpoint=`` picks another), paying ``R - 1``
+  (``drem_form="shifted"``, safe where success ends the episode; ``drem_form="paper"`` pays ``R``);
+  every other reward mode stays available;
 * ``register_drem_env("PegInsertionSide-v1", "ckpt.pt")`` registers ``PegInsertionSide-DREM-v1``:
   a stock ManiSkill task with a ``drem`` reward mode added and made the default, reading the
   checkpoint's cameras (rendered once per step when the obs has no images).
@@ -47,10 +48,13 @@ def _drem_default(base_cls, alias: str, default_checkpoint: Optional[str] = None
     """``base_cls`` with ``reward_mode="drem"`` by default (and ``drem_checkpoint=default_checkpoint``)."""
 
     class DREMDefault(base_cls):
-        __doc__ = f"{base_cls.__name__} with reward_mode='drem' by default ({alias})."
+        __doc__ = f"{base_cls.__name__} with reward_mode='drem' by default ({alias}), paying R - 1 (drem_form='shifted')."
 
-        def __init__(self, *args, reward_mode: Optional[str] = "drem", drem_checkpoint: Optional[str] = default_checkpoint, **kwargs):
-            super().__init__(*args, reward_mode=reward_mode, drem_checkpoint=drem_checkpoint, **kwargs)
+        # ManiSkill's scripts end episodes at success; the paper's R (positive per step) then pays an agent for
+        # never finishing (measured: docs/maniskill-scripts.md). R - 1 is never positive: finishing costs nothing.
+        def __init__(self, *args, reward_mode: Optional[str] = "drem", drem_checkpoint: Optional[str] = default_checkpoint,
+                     drem_form: str = "shifted", **kwargs):
+            super().__init__(*args, reward_mode=reward_mode, drem_checkpoint=drem_checkpoint, drem_form=drem_form, **kwargs)
 
     DREMDefault.__name__ = DREMDefault.__qualname__ = f"{base_cls.__name__}DREM"
     return DREMDefault

@@ -21,21 +21,26 @@ def test_drem_env_id_puts_drem_before_the_version():
 
 
 def test_alias_defaults_to_drem_and_matches_the_task_with_reward_mode_drem():
+    """The alias is the task with reward_mode="drem", paying R - 1 (safe under termination) unless drem_form="paper"."""
     alias = gym.make("PegInHole-DREM-v1")
     plain = gym.make("PegInHole-v1", reward_mode="drem")
+    paper_alias = gym.make("PegInHole-DREM-v1", drem_form="paper")
     try:
         assert alias.unwrapped.reward_mode == "drem" and alias.unwrapped.env_id == "PegInHole-v1"
+        assert alias.unwrapped.drem_form == "shifted" and plain.unwrapped.drem_form == "paper"
         assert alias.spec.max_episode_steps == plain.spec.max_episode_steps
         rewards, successes = [], []
-        for env in (alias, plain):
+        for env in (alias, plain, paper_alias):
             env.reset(seed=3)
             _, reward, _, _, info = env.step(torch.full((1, 6), 0.3))
             rewards.append(reward)
             successes.append(info["success"])
-        torch.testing.assert_close(rewards[0], rewards[1])
+        torch.testing.assert_close(rewards[0], rewards[1] - 1.0)
+        torch.testing.assert_close(rewards[2], rewards[1])
+        assert float(rewards[0][0]) <= 0
         torch.testing.assert_close(successes[0], successes[1])
     finally:
-        alias.close(), plain.close()
+        alias.close(), plain.close(), paper_alias.close()
 
 
 def test_alias_keeps_the_other_reward_modes():
@@ -71,7 +76,9 @@ def test_register_drem_env_on_a_stock_task(tmp_path):
     assert env_id == "PegInsertionSide-DREM-v1"
     assert gym.spec(env_id).max_episode_steps == gym.spec(STOCK).max_episode_steps
     alias = ManiSkillVectorEnv(gym.make(env_id, obs_mode="state"), auto_reset=False, ignore_terminations=True)
-    wrapped = DREMRewardWrapper(gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose", reward_mode="dense"), ckpt)
+    # The id pays R - 1 (drem_form "shifted"), as the wrapper does with form="shifted".
+    wrapped = DREMRewardWrapper(gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose", reward_mode="dense"), ckpt,
+                                form="shifted")
     alias_dense = gym.make(env_id, obs_mode="state", reward_mode="dense")
     try:
         u = alias.unwrapped
