@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # The SAC comparison of docs/results.md (the paper's Fig. 5 at this machine's scale): every
-# reward x seed on a task with the light preset, two runs at a time (one torch thread each),
-# then the curves and the table. Each run resumes if interrupted; rerun to continue.
+# reward x seed on a task, two runs at a time (one torch thread each), then the curves and the
+# table. Each run resumes if interrupted; rerun to continue.
 #   bash scripts/sac_comparison.sh [TASK] [STEPS] [SEEDS] [REWARDS...]
 #   defaults: PegInHole-v1 1500 "0 1 2" sparse engineered vice drem-image drem
-#   env: OUT (outputs/rl), PARALLEL (2), EVAL_EVERY (500), EVAL_EPISODES (5), LEARNING_STARTS (250)
+#   env: OUT (outputs/rl), PARALLEL (2), PRESET (light), and EVAL_EVERY, EVAL_EPISODES,
+#   LEARNING_STARTS: 500, 5, 250 with the light preset, the preset's own otherwise
+#   issue 13's comparison: PRESET=state bash scripts/sac_comparison.sh PegInHole-v1 50000
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 TASK=${1:-PegInHole-v1}
@@ -15,11 +17,17 @@ REWARDS=("$@")
 [ ${#REWARDS[@]} -gt 0 ] || REWARDS=(sparse engineered vice drem-image drem)
 BIN=.venv/bin/drem-maniskill
 OUT=${OUT:-outputs/rl}
+PRESET=${PRESET:-light}
 export OMP_WAIT_POLICY=PASSIVE
+if [ "$PRESET" = light ]; then
+  EVAL_EVERY=${EVAL_EVERY:-500} EVAL_EPISODES=${EVAL_EPISODES:-5} LEARNING_STARTS=${LEARNING_STARTS:-250}
+fi
+OPTS="--preset $PRESET${EVAL_EVERY:+ --eval-every $EVAL_EVERY}${EVAL_EPISODES:+ --eval-episodes $EVAL_EPISODES}"
+OPTS="$OPTS${LEARNING_STARTS:+ --learning-starts $LEARNING_STARTS}"
 jobs=()
 for seed in $SEEDS; do for reward in "${REWARDS[@]}"; do jobs+=("$reward $seed"); done; done
 mkdir -p "$OUT/logs"
 printf '%s\n' "${jobs[@]}" | xargs -P "${PARALLEL:-2}" -L 1 bash -c \
-  "$BIN train-policy --task $TASK --reward \$0 --seed \$1 --steps $STEPS --eval-every ${EVAL_EVERY:-500} --eval-episodes ${EVAL_EPISODES:-5} --learning-starts ${LEARNING_STARTS:-250} --threads 1 \
+  "$BIN train-policy --task $TASK --reward \$0 --seed \$1 --steps $STEPS $OPTS --threads 1 \
    --out $OUT/$TASK/\$0/seed\$1 > $OUT/logs/$TASK-\$0-\$1.log 2>&1 && echo done \$0 \$1"
 $BIN compare "$OUT/$TASK"/*/seed* --out "$OUT/comparison-$TASK"

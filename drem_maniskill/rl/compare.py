@@ -27,7 +27,8 @@ def run_label(cfg: dict) -> str:
         label += f" ({cfg['reward_checkpoint']})"
     # As RLConfig.drem_form_used: an unset form is "shifted" where episodes end at success.
     form = cfg.get("drem_form") or ("shifted" if cfg.get("terminate_on_success") else "paper")
-    if cfg["reward"].startswith("drem") and form != "paper":
+    # Where episodes end at success the form matters either way (the paper's R is then a trap): always named.
+    if cfg["reward"].startswith("drem") and (form != "paper" or cfg.get("terminate_on_success")):
         label += f", {form}"
     if cfg.get("terminate_on_success"):
         label += ", ends at success"

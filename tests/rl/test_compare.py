@@ -77,12 +77,14 @@ def test_runs_that_end_at_success_or_use_another_checkpoint_are_curves_of_their_
     ended = _fake_run(tmp_path / "t", "PegInHole-v1", "engineered", 0, [0.0, 0.6, 1.0])
     own = _fake_run(tmp_path / "c", "PegInHole-v1", "drem", 0, [0.0, 0.0, 0.0])
     tuned = _fake_run(tmp_path / "k", "PegInHole-v1", "drem", 0, [0.0, 0.1, 0.1])
-    knobs = dict(drem_form="shifted", terminate_on_success=True, obs_norm=["state", "ft"], action_scale=0.5)
+    trap = _fake_run(tmp_path / "p", "PegInHole-v1", "drem", 0, [0.0, 0.0, 0.0])
+    # An unset form under termination is the shifted one (RLConfig.drem_form_used); the paper's is then named too.
+    knobs = dict(drem_form=None, terminate_on_success=True, obs_norm=["state", "ft"], action_scale=0.5)
     for run, extra in ((ended, dict(terminate_on_success=True)), (own, dict(reward_checkpoint="out/reward/drem.pt")),
-                       (tuned, knobs)):
+                       (tuned, knobs), (trap, dict(drem_form="paper", terminate_on_success=True))):
         cfg = json.loads((run / "config.json").read_text())
         (run / "config.json").write_text(json.dumps({**cfg, **extra}))
-    table = {r["reward"]: r for r in compare_runs([plain, ended, own, tuned], str(tmp_path / "cmp"))["rows"]}
+    table = {r["reward"]: r for r in compare_runs([plain, ended, own, tuned, trap], str(tmp_path / "cmp"))["rows"]}
     assert set(table) == {"engineered", "engineered, ends at success", "drem (out/reward/drem.pt)",
-                          "drem, shifted, ends at success, norm state+ft, actions x0.5"}
+                          "drem, shifted, ends at success, norm state+ft, actions x0.5", "drem, paper, ends at success"}
     assert table["engineered, ends at success"]["steps_to_50"] == 1000 and table["engineered"]["steps_to_50"] == "not reached"
