@@ -186,9 +186,16 @@ def resume_seed(seed: int, steps: int) -> int:
     return (int(seed) + 1_000_003 * int(steps)) % 2**32
 
 
+def _comparable(config: RLConfig) -> dict:
+    """``config.to_dict()`` with the DREM form as the run pays it (None for a reward that reads no DREM checkpoint)."""
+    d = config.to_dict()
+    d["drem_form"] = config.drem_form_used if reward_spec(config.reward).checkpoint else None
+    return d
+
+
 def _check_resumable(saved: RLConfig, config: RLConfig) -> None:
-    diff = {k: (v, getattr(config, k)) for k, v in saved.to_dict().items()
-            if k not in RESUMABLE_FIELDS and v != config.to_dict()[k]}
+    now = _comparable(config)
+    diff = {k: (v, now[k]) for k, v in _comparable(saved).items() if k not in RESUMABLE_FIELDS and v != now[k]}
     if diff:
         lines = ", ".join(f"{k}: saved {a!r}, now {b!r}" for k, (a, b) in diff.items())
         raise ValueError(f"{config.run_dir} holds a run with another config ({lines}); use another --out or the same options")

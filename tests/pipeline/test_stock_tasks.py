@@ -91,7 +91,8 @@ def test_register_drem_env_makes_drem_the_stock_tasks_default(stock_pipeline, tm
     assert env_id == "PegInsertionSide-DREM-v1"
     kwargs = dict(obs_mode="state", control_mode="pd_ee_delta_pose")
     alias = ManiSkillVectorEnv(gym.make(env_id, **kwargs), auto_reset=False, ignore_terminations=True)
-    wrapped = DREMRewardWrapper(gym.make(STOCK, **kwargs), stock_pipeline["checkpoint"])
+    # The id pays R - 1 (drem_form "shifted", safe where success ends the episode), as the wrapper with that form.
+    wrapped = DREMRewardWrapper(gym.make(STOCK, **kwargs), stock_pipeline["checkpoint"], form="shifted")
     try:
         assert alias.unwrapped.reward_mode == "drem"
         rewards = []

@@ -73,3 +73,20 @@ def test_a_run_resumed_late_gets_a_seed_numpy_accepts():
         np.random.default_rng(seed)
         assert 0 <= seed < 2**32
     assert len(set(seeds)) == len(seeds)
+
+
+def test_resume_compares_the_drem_form_as_the_run_pays_it():
+    """A run resumes under the same settings however the form was spelled; another form or gamma is refused."""
+    import pytest
+
+    from drem_maniskill.rl.config import RLConfig
+    from drem_maniskill.rl.train_policy import _check_resumable
+
+    saved = RLConfig.preset("state", reward="engineered", drem_form="paper")
+    _check_resumable(saved, RLConfig.preset("state", reward="engineered", steps=80_000))  # the form means nothing here
+    drem = RLConfig.preset("state", reward="drem", drem_form="shifted")
+    _check_resumable(drem, RLConfig.preset("state", reward="drem"))  # unset: shifted, as episodes end at success
+    with pytest.raises(ValueError, match="drem_form: saved 'shifted', now 'paper'"):
+        _check_resumable(drem, RLConfig.preset("state", reward="drem", drem_form="paper"))
+    with pytest.raises(ValueError, match="gamma: saved 0.95, now 0.9"):
+        _check_resumable(saved, RLConfig.preset("state", reward="engineered", gamma=0.9))
