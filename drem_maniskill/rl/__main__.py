@@ -60,12 +60,12 @@ def add_subcommands(sub) -> None:
     p.add_argument("--eval-episodes", type=int, help="held-out seeds per evaluation (from 10000)")
     p.add_argument("--reward-checkpoint", help="drem rewards: this DREM checkpoint instead of the shipped rewards/<task>/drem.pt")
     p.add_argument("--terminate-on-success", action=argparse.BooleanOptionalAction, default=None,
-                   help="end a training episode at its first success (default: off, episodes run to the time limit)")
+                   help="end a training episode at its first success (default: the preset's; on for state, else off: episodes run to the time limit)")
     p.add_argument("--drem-form", choices=["paper", "shifted"],
-                   help="drem rewards: paper pays R, shifted R - 1 (<= 0; for --terminate-on-success) (default: paper)")
+                   help="drem rewards: paper pays R, shifted R - 1 (never positive) (default: shifted where episodes end at success, else paper)")
     p.add_argument("--obs-norm", nargs="*", choices=["state", "ft"],
                    help="normalise these policy inputs by running statistics (default: the preset's; none: --obs-norm)")
-    p.add_argument("--action-scale", type=float, help="the policy's full range as a fraction of the controller's (default: 1)")
+    p.add_argument("--action-scale", type=float, help="the policy's full range as a fraction of the controller's (default: the preset's; state 0.5, else 1)")
     p.add_argument("--gamma", type=float, help="discount (default: the preset's, 0.95)")
     p.add_argument("--gradient-steps", type=int, help="SAC gradient steps per env step (default: 1)")
     p.add_argument("--learning-starts", type=int)

@@ -71,7 +71,8 @@ class MultimodalExtractor(BaseFeaturesExtractor):
             else:
                 encoders[key], total = nn.Flatten(), total + int(torch.tensor(space.shape).prod())
             if key in normalize:
-                encoders[key] = nn.Sequential(RunningNorm(space.shape), *(encoders[key] if isinstance(encoders[key], nn.Sequential) else [encoders[key]]))
+                inner = encoders[key]
+                encoders[key] = nn.Sequential(RunningNorm(space.shape), *(inner if isinstance(inner, nn.Sequential) else [inner]))
         super().__init__(observation_space, features_dim=total)
         self.encoders = nn.ModuleDict(encoders)
 
