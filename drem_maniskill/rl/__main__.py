@@ -44,6 +44,7 @@ def _cmd_compare(args) -> None:
 
 def add_subcommands(sub) -> None:
     """Add ``train-policy`` and ``compare`` to an argparse subparsers object (here and in ``drem-maniskill``)."""
+    from drem_maniskill.drem.reward import DREM_FORMS
     from drem_maniskill.rl.config import PRESETS
     from drem_maniskill.rl.rewards import REWARDS
 
@@ -61,7 +62,7 @@ def add_subcommands(sub) -> None:
     p.add_argument("--reward-checkpoint", help="drem rewards: this DREM checkpoint instead of the shipped rewards/<task>/drem.pt")
     p.add_argument("--terminate-on-success", action=argparse.BooleanOptionalAction, default=None,
                    help="end a training episode at its first success (default: the preset's; on for state, else off: episodes run to the time limit)")
-    p.add_argument("--drem-form", choices=["paper", "shifted"],
+    p.add_argument("--drem-form", choices=list(DREM_FORMS),
                    help="drem rewards: paper pays R, shifted R - 1 (never positive) (default: shifted where episodes end at success, else paper)")
     p.add_argument("--obs-norm", nargs="*", choices=["state", "ft"],
                    help="normalise these policy inputs by running statistics (default: the preset's; none: --obs-norm)")

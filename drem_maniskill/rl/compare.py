@@ -9,6 +9,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from drem_maniskill.rl.config import drem_form_used
+from drem_maniskill.rl.rewards import REWARDS
 from drem_maniskill.rl.train_policy import read_eval_csv
 
 
@@ -25,10 +27,10 @@ def run_label(cfg: dict) -> str:
     label = cfg["reward"]
     if cfg.get("reward_checkpoint"):
         label += f" ({cfg['reward_checkpoint']})"
-    # As RLConfig.drem_form_used: an unset form is "shifted" where episodes end at success.
-    form = cfg.get("drem_form") or ("shifted" if cfg.get("terminate_on_success") else "paper")
+    form = drem_form_used(cfg.get("drem_form"), bool(cfg.get("terminate_on_success")))
+    reads_drem = cfg["reward"] in REWARDS and REWARDS[cfg["reward"]].checkpoint
     # Where episodes end at success the form matters either way (the paper's R is then a trap): always named.
-    if cfg["reward"].startswith("drem") and (form != "paper" or cfg.get("terminate_on_success")):
+    if reads_drem and (form != "paper" or cfg.get("terminate_on_success")):
         label += f", {form}"
     if cfg.get("terminate_on_success"):
         label += ", ends at success"

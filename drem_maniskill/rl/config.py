@@ -138,9 +138,7 @@ class RLConfig:
     @property
     def drem_form_used(self) -> str:
         """The DREM form the run pays (``drem_form``, or by ``terminate_on_success`` when it is None)."""
-        if self.drem_form is not None:
-            return self.drem_form
-        return "shifted" if self.terminate_on_success else "paper"
+        return drem_form_used(self.drem_form, self.terminate_on_success)
 
     @property
     def normalized_inputs(self) -> tuple:
@@ -170,6 +168,14 @@ class RLConfig:
     def load(cls, path) -> "RLConfig":
         """Read a config written by ``save``."""
         return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+def drem_form_used(drem_form: Optional[str], terminate_on_success: bool) -> str:
+    """``drem_form``, or where it is unset ``"shifted"`` if episodes end at success (the paper's R would
+    then pay for not finishing), else ``"paper"``; also for config dicts that are not whole RLConfigs."""
+    if drem_form is not None:
+        return drem_form
+    return "shifted" if terminate_on_success else "paper"
 
 
 def _legacy(d: dict) -> dict:
