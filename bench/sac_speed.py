@@ -17,6 +17,7 @@ reward_mode="none")``, random actions, measured in the same run): issue 13's tar
     .venv/bin/python bench/sac_speed.py                          # light preset, every reward
     .venv/bin/python bench/sac_speed.py --presets state light --rewards drem  # issue 13's two ratios
     .venv/bin/python bench/sac_speed.py --presets light paper --paper-steps 20
+    .venv/bin/python bench/sac_speed.py --rewards drem --encoders separate shared   # rl.sac's shared encoder
 """
 
 from __future__ import annotations
@@ -68,10 +69,11 @@ def random_step_ms(env, n: int) -> float:
 
 
 def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_steps: int, none_ms: float,
-            plain_ms: float) -> dict:
-    """Time one reward in one preset; the numbers of one table row."""
+            plain_ms: float, encoder: str = "preset") -> dict:
+    """Time one reward in one preset (``encoder``: the preset's, ``separate`` or ``shared``); one table row."""
+    overrides = {} if encoder == "preset" else dict(shared_encoder=encoder == "shared")
     config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
-                             reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp())
+                             reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp(), **overrides)
     torch.set_num_threads(config.threads)
     env, vice = make_env(config)
     u = env.unwrapped
@@ -106,7 +108,7 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     venv.close()
     per_k = 1000 * total / steps
     return dict(
-        preset=preset, reward=reward, task=task, steps=steps,
+        preset=preset, reward=reward, encoder="shared" if config.shared_encoder else "separate", task=task, steps=steps,
         sac_s_per_1k=round(per_k, 1), env_steps_per_min=round(60 * steps / total, 1),
         plain_env_s_per_1k=round(plain_ms, 2), x_env=round(per_k / plain_ms, 2),
         grad_ms=round(1000 * grad_timer.total / steps, 2),
@@ -128,6 +130,8 @@ def main(argv=None) -> int:
     p.add_argument("--paper-steps", type=int, default=20, help="timed SAC steps per reward, paper preset")
     p.add_argument("--warmup", type=int, default=256, help="random steps first (also the first batches)")
     p.add_argument("--env-steps", type=int, default=100, help="random env steps for the step-difference measure")
+    p.add_argument("--encoders", nargs="+", default=["preset"], choices=["preset", "separate", "shared"],
+                   help="image presets: the preset's extractor layout, SB3's separate ones, or one shared (rl.sac)")
     p.add_argument("--out", default="outputs/bench/sac_speed.json")
     args = p.parse_args(argv)
     import drem_maniskill  # noqa: F401
@@ -151,15 +155,19 @@ def main(argv=None) -> int:
         none_ms = random_step_ms(none_env, args.env_steps)
         none_env.close()
         steps = args.paper_steps if preset == "paper" else args.steps
+        # The state preset has no camera, so no encoder to share.
+        encoders = ["preset"] if preset == "state" else args.encoders
         for reward in args.rewards:
-            try:
-                row = measure(preset, reward, args.task, steps, args.warmup, args.env_steps, none_ms, plain_ms)
-            except FileNotFoundError as err:  # drem-image without its checkpoint
-                print(f"{preset} {reward}: skipped: {err}", file=sys.stderr)
-                continue
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-    head = ("preset", "reward", "sac_s_per_1k", "x_env", "grad_ms", "env_share", "reward_s_per_1k", "reward_share",
+            for encoder in encoders:
+                try:
+                    row = measure(preset, reward, args.task, steps, args.warmup, args.env_steps, none_ms, plain_ms,
+                                  encoder)
+                except FileNotFoundError as err:  # drem-image without its checkpoint
+                    print(f"{preset} {reward}: skipped: {err}", file=sys.stderr)
+                    continue
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    head = ("preset", "reward", "encoder", "sac_s_per_1k", "x_env", "grad_ms", "env_share", "reward_s_per_1k", "reward_share",
             "step_ms", "step_ms_none", "step_diff_share")
     print("\n| " + " | ".join(head) + " |\n|" + " --- |" * len(head))
     for r in rows:

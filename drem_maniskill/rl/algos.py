@@ -11,11 +11,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from drem_maniskill.rl.policy import MultimodalExtractor
+from drem_maniskill.rl.sac import SAC
 
 
 def policy_kwargs(config) -> dict:
@@ -25,14 +25,16 @@ def policy_kwargs(config) -> dict:
         features_extractor_kwargs=dict(cnn_channels=config.cnn_channels, camera_features=config.camera_features,
                                        ft_features=config.ft_features,
                                        normalize=config.normalized_inputs),
-        net_arch=list(config.net_arch), share_features_extractor=config.share_features_extractor,
+        net_arch=list(config.net_arch),
+        # SharedEncoderPolicy always shares, through the critic; SB3's own sharing trains through the actor.
+        **({} if config.shared_encoder else dict(share_features_extractor=config.share_features_extractor)),
     )
 
 
 def build_sac(config, venv) -> SAC:
-    """A fresh SB3 SAC with ``MultiInputPolicy`` and our extractor, as ``config`` says."""
+    """A fresh SAC (``rl.sac``: SB3's, shared-encoder step optional) with our extractor, as ``config`` says."""
     return SAC(
-        "MultiInputPolicy", venv, learning_rate=config.learning_rate,
+        "SharedEncoderPolicy" if config.shared_encoder else "MultiInputPolicy", venv, learning_rate=config.learning_rate,
         # No more transitions than steps: SB3 allocates (and pickles) the whole buffer.
         buffer_size=min(config.buffer_size, config.steps), batch_size=config.batch_size,
         learning_starts=config.learning_starts, train_freq=config.train_freq, gradient_steps=config.gradient_steps,

@@ -40,7 +40,11 @@ class RLConfig:
     camera_features: int = 64
     ft_features: int = 32
     net_arch: tuple = (256, 256)
-    share_features_extractor: bool = False
+    share_features_extractor: bool = False  # SB3's sharing: one extractor, trained by the actor loss
+    # One extractor for actor and critics, trained by the critic loss, the actor reading it detached
+    # (ManiSkill's sac_rgbd.py, DrQ): per gradient step the CNNs run 2 forward + 1 backward passes, not 5 + 3.
+    # Runs saved before the field existed load with False, as they were trained.
+    shared_encoder: bool = True
 
     # --- SAC (stable-baselines3)
     learning_rate: float = 3e-4
@@ -89,6 +93,7 @@ class RLConfig:
                 cameras=(), policy_ft=True, policy_state=True, policy_qvel=True, policy_privileged=True,
                 steps=50_000, buffer_size=100_000, batch_size=256, learning_starts=1_000, eval_every=2_500,
                 terminate_on_success=True, obs_norm=("state", "ft"), action_scale=0.5,
+                shared_encoder=False,  # no camera to share; the comparison's runs were made with SB3's layout
             )
         elif name == "paper":
             # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
@@ -115,6 +120,9 @@ class RLConfig:
 
         if self.drem_form is not None:
             check_form(self.drem_form)
+        if self.shared_encoder and self.share_features_extractor:
+            raise ValueError("shared_encoder (the critic trains the extractor, on by default) and share_features_extractor "
+                             "(SB3's: the actor trains it) are two ways to share it; pick one, e.g. shared_encoder=False")
         if not 0 < self.action_scale <= 1:
             raise ValueError(f"action_scale must be in (0, 1], got {self.action_scale}")
         if 128 % self.image_size:
@@ -157,8 +165,11 @@ class RLConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "RLConfig":
-        """Inverse of ``to_dict`` (unknown keys are an error, so a stale config is not half-read)."""
-        return cls(**_legacy(d))
+        """Inverse of ``to_dict`` (unknown keys are an error, so a stale config is not half-read).
+
+        A config without ``shared_encoder`` is from a run trained with SB3's separate extractors.
+        """
+        return cls(**{"shared_encoder": False, **_legacy(d)})
 
     def save(self, path) -> None:
         """Write the config as JSON."""
