@@ -33,7 +33,7 @@ def _cmd_record_expert(args) -> None:
     except json.JSONDecodeError as err:
         raise SystemExit(f"--env-kwargs must be a JSON object, e.g. '{{\"sim_backend\": \"cpu\"}}': {err}")
     result = record_expert(args.task, args.out, seeds=seeds, obs_mode=args.obs_mode, name=args.name, save_video=args.video,
-                           env_kwargs=env_kwargs)
+                           env_kwargs=env_kwargs, descent_step=args.descent_step)
     print(json.dumps({"trajectory": result.h5_path, "metadata": result.json_path, "success_rate": result.success_rate,
                       "lengths": result.lengths}, indent=2))
 
@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--video", action="store_true", help="also write an mp4 per episode")
     p.add_argument("--env-kwargs", default="{}",
                    help="JSON of extra gym.make kwargs; ManiSkill's own tasks default to control_mode pd_ee_delta_pose")
+    p.add_argument("--descent-step", type=float,
+                   help="our tasks: metres per step the expert descends once 6 mm inside the hole (default 0.005); "
+                        "smaller gives the progress tree more depths inside it (docs/drem.md)")
     p.set_defaults(func=_cmd_record_expert)
 
     p = sub.add_parser("scripted-success", help="success rate of a scripted policy over many seeds")

@@ -19,7 +19,9 @@ from tqdm import tqdm
 from mani_skill.utils.wrappers.record import RecordEpisode
 
 from drem_maniskill.experts.control import ee_control_kwargs
+from drem_maniskill.envs import InsertionEnv
 from drem_maniskill.experts.policies import get_policy
+from drem_maniskill.experts.scripted import ExpertPolicy
 from drem_maniskill.experts.rollout import rollout
 from drem_maniskill.utils.episodes import episode_horizon
 
@@ -50,8 +52,12 @@ def record_expert(
     save_video: bool = False,
     max_steps: Optional[int] = None,
     env_kwargs: Optional[dict] = None,
+    descent_step: Optional[float] = None,
 ) -> RecordResult:
-    """Roll out a scripted policy (a name, or a callable ``obs -> action``) on ``seeds``; save with ``RecordEpisode``."""
+    """Roll out a scripted policy (a name, or a callable ``obs -> action``) on ``seeds``; save with ``RecordEpisode``.
+
+    ``descent_step``: our tasks' ``expert`` only, metres per step once inside the hole (default 0.005).
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     env_kwargs = ee_control_kwargs(env_id, env_kwargs)
@@ -61,7 +67,17 @@ def record_expert(
         env, str(out), trajectory_name=name, save_video=save_video, info_on_video=False,
         save_on_reset=False, record_env_state=True, video_fps=5,
     )
-    pi = policy if callable(policy) else get_policy(policy, env, seed=int(seeds[0]) if len(seeds) else 0)
+    first = int(seeds[0]) if len(seeds) else 0
+    try:
+        if descent_step is None:
+            pi = policy if callable(policy) else get_policy(policy, env, seed=first)
+        elif policy == "expert" and isinstance(env.unwrapped, InsertionEnv):
+            pi = ExpertPolicy(env, seed=first, descent_step=descent_step)
+        else:
+            raise ValueError(f"descent_step sets the expert of our insertion tasks, not {policy!r} on {env_id}")
+    except Exception:
+        env.close()
+        raise
     horizon = max_steps or episode_horizon(env)
     result = RecordResult(h5_path=str(out / f"{name}.h5"), json_path=str(out / f"{name}.json"))
     try:

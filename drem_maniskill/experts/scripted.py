@@ -18,6 +18,8 @@ Names (Section IV-C of the paper):
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 import torch
 
@@ -128,6 +130,14 @@ class ExpertPolicy(ScriptedPolicy):
     fine_depth = 0.006  # m below the top face the entry ends
     fine_radius = 0.01  # m from the pre-insertion point the approach slows to fine_speed
     fine_speed = 0.15  # of the action range: 3 mm per step
+
+    def __init__(self, env, seed: int = 0, descent_step: Optional[float] = None):
+        super().__init__(env, seed)
+        if descent_step is not None:
+            # A slower descent gives the tree more depths inside the hole (record-expert --descent-step).
+            if not 0 < descent_step <= 0.02:
+                raise ValueError(f"descent_step is metres per step in (0, 0.02] (the controller's range), got {descent_step}")
+            self.descent_step = float(descent_step)
 
     def act(self) -> torch.Tensor:
         tip, yaw, _ = self.state()

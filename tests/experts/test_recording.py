@@ -32,3 +32,27 @@ def test_record_expert_on_a_stock_task_with_video(tmp_path):
             assert rgb.shape == (steps + 1, 128, 128, 3) and rgb.dtype == np.uint8
         assert "env_states" in traj and traj["success"][-1]
     assert sorted(p.name for p in tmp_path.glob("*.mp4")) == ["0.mp4"]
+
+
+def test_a_slower_expert_descent_records_more_steps_inside_the_hole(tmp_path):
+    """``descent_step`` (record-expert --descent-step): the same seed, more steps below the opening, still a success."""
+    from drem_maniskill.experts.recording import record_expert
+
+    lengths = {}
+    for step in (0.005, 0.002):
+        rec = record_expert("PegInHole-v1", str(tmp_path / str(step)), seeds=[1000], obs_mode="state_dict", descent_step=step)
+        assert rec.success == [True]
+        lengths[step] = rec.lengths[0]
+    # The approach is the same; the last 34 mm take 17 steps at 2 mm instead of 7 at 5 mm.
+    assert lengths[0.002] >= lengths[0.005] + 5, lengths
+
+
+def test_descent_step_is_refused_where_there_is_no_insertion_expert(tmp_path):
+    import pytest
+
+    from drem_maniskill.experts.recording import record_expert
+
+    with pytest.raises(ValueError, match="descent_step"):
+        record_expert("PlugCharger-v1", str(tmp_path), seeds=[0], descent_step=0.002)
+    with pytest.raises(ValueError, match="metres per step"):
+        record_expert("PegInHole-v1", str(tmp_path), seeds=[0], descent_step=0.05)
