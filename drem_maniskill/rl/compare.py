@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import textwrap
 from collections import defaultdict
 from pathlib import Path
 from typing import Optional, Sequence
@@ -54,6 +55,12 @@ def load_run(run_dir) -> dict:
     return dict(run_dir=str(run_dir), task=cfg["task"], reward=run_label(cfg), seed=cfg.get("seed"), rows=rows)
 
 
+def shared_settings(labels: Sequence[str]) -> list:
+    """The settings (``run_label``'s comma-separated parts after the reward) that every label of a panel has."""
+    parts = [label.split(", ")[1:] for label in labels]
+    return [p for p in parts[0] if all(p in other for other in parts[1:])] if parts else []
+
+
 def aggregate(runs: list[dict]) -> dict:
     """Per (task, reward label): the seeds' curves on their common evaluation steps; mean, min, max, std."""
     groups = defaultdict(list)
@@ -85,27 +92,31 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4), squeeze=False)
+    most = max(sum(t == task for t, _ in groups) for task in tasks)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4 + 0.3 * most), squeeze=False)
     table = []
     for ax, task in zip(axes[0], tasks):
+        shared = shared_settings([reward for t, reward in groups if t == task])
         for (t, reward), g in sorted(groups.items()):
             if t != task:
                 continue
             x = np.asarray(g["steps"])
             lo, hi = (g["min"], g["max"]) if band == "minmax" else (g["mean"] - g["std"], g["mean"] + g["std"])
-            line, = ax.plot(x, g["mean"], label=f"{reward} ({len(g['seeds'])} seeds)")
+            own = ", ".join(part for part in reward.split(", ") if part not in shared)
+            line, = ax.plot(x, g["mean"], label=textwrap.fill(f"{own} ({len(g['seeds'])} seeds)", 60))
             ax.fill_between(x, np.clip(lo, 0, 1), np.clip(hi, 0, 1), color=line.get_color(), alpha=0.2)
             reach = steps_to_reach(g["steps"], list(g["mean"]), level)
             table.append(dict(task=task, reward=reward, seeds=len(g["seeds"]), final_steps=int(x[-1]),
                               final_success=float(g["mean"][-1]), final_success_min=float(g["min"][-1]),
                               final_success_max=float(g["max"][-1]),
                               steps_to_50=("not reached" if reach is None else round(reach))))
-        ax.set_title(task)
+        ax.set_title(task + ("\n" + textwrap.fill(", ".join(shared), 70) if shared else ""), fontsize=9)
         ax.set_xlabel("environment steps")
         ax.set_ylabel("success rate")
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        # Below the axes: long labels (checkpoint paths) would cover the curves.
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     fig.suptitle(f"SAC success rate, mean and {'min-max' if band == 'minmax' else '±1 std'} over seeds")
     fig.tight_layout()
     png = out_dir / "comparison.png"

@@ -88,3 +88,13 @@ def test_runs_that_end_at_success_or_use_another_checkpoint_are_curves_of_their_
     assert set(table) == {"engineered", "engineered, ends at success", "drem (out/reward/drem.pt)",
                           "drem, shifted, ends at success, norm state+ft, actions x0.5", "drem, paper, ends at success"}
     assert table["engineered, ends at success"]["steps_to_50"] == 1000 and table["engineered"]["steps_to_50"] == "not reached"
+
+
+def test_the_settings_every_curve_of_a_panel_shares_go_to_its_title():
+    from drem_maniskill.rl.compare import shared_settings
+
+    labels = ["drem (a.pt), shifted, ends at success, norm state+ft", "drem, shifted, ends at success, norm state+ft",
+              "engineered, ends at success, norm state+ft"]
+    assert shared_settings(labels) == ["ends at success", "norm state+ft"]
+    assert shared_settings(["sparse"]) == []
+    assert shared_settings(["drem, shifted", "drem, paper"]) == []
