@@ -146,6 +146,13 @@ REWARDS: dict[str, RewardSpec] = {
 }
 
 
+def reward_checkpoint(name: str, task: str, given: Optional[str] = None) -> Optional[Path]:
+    """The DREM checkpoint reward ``name`` reads on ``task`` (``given``, else the shipped one); None if it reads none."""
+    if not reward_spec(name).checkpoint:
+        return None
+    return Path(given) if given else drem_checkpoints.default_checkpoint(task, image_only=name == "drem-image")
+
+
 def reward_spec(name: str) -> RewardSpec:
     """The ``REWARDS`` entry of ``name``, or a ValueError listing the choices."""
     if name not in REWARDS:

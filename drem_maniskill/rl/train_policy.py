@@ -4,6 +4,7 @@ The run loop names no reward and no algorithm: both come from their tables by th
 ``reward`` and ``algo``. Run dir (``RLConfig.run_dir``)::
 
     config.json              the RLConfig of the run
+    reward_checkpoint.json   a DREM reward's checkpoint: {"path", "sha256"}; a resume must read the same file
     eval.csv                 steps, success_rate, mean_return, wall_time (one row per evaluation)
     tb/                      TensorBoard (SB3's logger: train/*, rollout/*, eval/*, <reward>/* of a learned reward)
     sb3/from<N>/progress.csv SB3's csv log of the segment that started at step N
@@ -14,6 +15,7 @@ The run loop names no reward and no algorithm: both come from their tables by th
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import os
 import shutil
@@ -26,10 +28,11 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger, make_output_format
 
+from drem_maniskill.envs import check_env_id
 from drem_maniskill.experts import rollout
 from drem_maniskill.rl.algos import algo_spec
 from drem_maniskill.rl.config import RLConfig
-from drem_maniskill.rl.rewards import reward_spec
+from drem_maniskill.rl.rewards import reward_checkpoint, reward_spec
 from drem_maniskill.rl.run_env import make_env, make_eval_env
 from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv
 from drem_maniskill.utils.episodes import max_episode_steps
@@ -201,6 +204,39 @@ def _check_resumable(saved: RLConfig, config: RLConfig) -> None:
         raise ValueError(f"{config.run_dir} holds a run with another config ({lines}); use another --out or the same options")
 
 
+def file_sha256(path) -> str:
+    """Hex sha256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def pin_reward_checkpoint(config: RLConfig, run_dir: Path, resuming: bool) -> Optional[dict]:
+    """Record the DREM checkpoint that pays the run (path, sha256); a resumed run must be paid by the same file.
+
+    The shipped checkpoints are retrained from time to time under the same path, so a config that
+    says ``reward_checkpoint: null`` does not say which reward a run saw, and a resume after a
+    retraining would switch rewards in the middle of a run without this check.
+    """
+    path = reward_checkpoint(config.reward, check_env_id(config.task), config.reward_checkpoint)
+    if path is None or not path.exists():
+        return None  # no DREM reward, or make_env names the missing file
+    now = dict(path=str(path), sha256=file_sha256(path))
+    pin = run_dir / "reward_checkpoint.json"
+    if resuming and pin.exists():
+        saved = json.loads(pin.read_text())
+        if saved["sha256"] != now["sha256"]:
+            raise ValueError(
+                f"{run_dir} was trained on the reward checkpoint {saved['path']} (sha256 {saved['sha256'][:12]}), "
+                f"and {path} is now another file (sha256 {now['sha256'][:12]}): resume with --reward-checkpoint "
+                "pointing at a copy of the original, or start a new run with another --out")
+        return saved
+    _atomic_json(pin, now)
+    return now
+
+
 def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> dict:
     """Train (or resume) as ``config`` says; returns the run dir, steps, resumed-from step and last evaluation."""
     reward_spec(config.reward)  # unknown names fail before anything is built
@@ -212,6 +248,7 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
     if (run_dir / "config.json").exists() and ckpt is not None:
         _check_resumable(RLConfig.load(run_dir / "config.json"), config)
     config.save(run_dir / "config.json")
+    pinned = pin_reward_checkpoint(config, run_dir, resuming=ckpt is not None)
 
     progress = json.loads((ckpt / "progress.json").read_text()) if ckpt else dict(num_timesteps=0, wall_time=0.0, eval_rows=0)
     rows = read_eval_csv(run_dir / "eval.csv")
@@ -239,7 +276,7 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
             model.learn(total_timesteps=config.steps - start, reset_num_timesteps=False,
                         callback=CallbackList([run, *callbacks]), log_interval=4)
         return dict(run_dir=str(run_dir), steps=model.num_timesteps, resumed_from=start,
-                    last_eval=rows[-1] if rows else None, env_time=venv.env_time)
+                    last_eval=rows[-1] if rows else None, env_time=venv.env_time, reward_checkpoint=pinned)
     finally:
         venv.close()
         eval_env.close()

@@ -90,3 +90,43 @@ def test_resume_compares_the_drem_form_as_the_run_pays_it():
         _check_resumable(drem, RLConfig.preset("state", reward="drem", drem_form="paper"))
     with pytest.raises(ValueError, match="gamma: saved 0.95, now 0.9"):
         _check_resumable(saved, RLConfig.preset("state", reward="engineered", gamma=0.9))
+
+
+def test_a_run_pins_its_drem_checkpoint_and_refuses_to_resume_on_another(tmp_path):
+    """The run dir records the checkpoint's sha256; a retrained file under the same path stops a resume."""
+    import shutil
+
+    from drem_maniskill.rl.train_policy import file_sha256, pin_reward_checkpoint
+    from tests.conftest import tiny_checkpoint
+
+    ckpt = tmp_path / "drem.pt"
+    shutil.copy(tiny_checkpoint(tmp_path / "a", "PegInHole-v1"), ckpt)
+    run = tmp_path / "run"
+    run.mkdir()
+    config = RLConfig.preset("state", task="PegInHole-v1", reward="drem", reward_checkpoint=str(ckpt), out=str(run))
+    pinned = pin_reward_checkpoint(config, run, resuming=False)
+    assert pinned == dict(path=str(ckpt), sha256=file_sha256(ckpt))
+    assert json.loads((run / "reward_checkpoint.json").read_text()) == pinned
+    assert pin_reward_checkpoint(config, run, resuming=True) == pinned  # same file: resumes
+
+    shutil.copy(tiny_checkpoint(tmp_path / "b", "PegInHole-v1", modalities=("fixed", "wrist")), ckpt)  # "retrained"
+    with pytest.raises(ValueError, match=r"was trained on the reward checkpoint .*drem\.pt .*another file"):
+        pin_reward_checkpoint(config, run, resuming=True)
+    assert pin_reward_checkpoint(config, run, resuming=False)["sha256"] == file_sha256(ckpt)  # a fresh run re-pins
+
+    engineered = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", out=str(tmp_path / "eng"))
+    (tmp_path / "eng").mkdir()
+    assert pin_reward_checkpoint(engineered, tmp_path / "eng", resuming=False) is None
+    assert not (tmp_path / "eng" / "reward_checkpoint.json").exists()
+
+
+def test_each_drem_reward_names_the_checkpoint_it_reads():
+    """drem and drem-guarded read drem.pt, drem-image reads drem_image.pt, --reward-checkpoint replaces both."""
+    from drem_maniskill.rl.rewards import reward_checkpoint
+
+    assert reward_checkpoint("drem", "PegInHole-v1").name == "drem.pt"
+    assert reward_checkpoint("drem-guarded", "PegInHole-v1").name == "drem.pt"
+    assert reward_checkpoint("drem-image", "USBInsertion-v1").name == "drem_image.pt"
+    assert reward_checkpoint("drem-image", "USBInsertion-v1").parent.name == "USBInsertion-v1"
+    assert str(reward_checkpoint("drem", "PegInHole-v1", "x/my.pt")) == "x/my.pt"
+    assert reward_checkpoint("vice", "PegInHole-v1") is None and reward_checkpoint("sparse", "PegInHole-v1") is None
