@@ -11,8 +11,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from drem_maniskill.rl.config import drem_form_used
-from drem_maniskill.rl.rewards import REWARDS
-from drem_maniskill.rl.train_policy import read_eval_csv
+from drem_maniskill.rl.rewards import REWARDS, reward_checkpoint
+from drem_maniskill.rl.train_policy import file_sha256, read_eval_csv
 
 
 def steps_to_reach(steps: Sequence[float], values: Sequence[float], level: float = 0.5) -> Optional[float]:
@@ -23,10 +23,24 @@ def steps_to_reach(steps: Sequence[float], values: Sequence[float], level: float
     return None
 
 
-def run_label(cfg: dict) -> str:
-    """The curve a run belongs to: its reward, and the settings that change what the reward teaches."""
+def shipped_sha256(reward: str, task: str) -> Optional[str]:
+    """sha256 of the checkpoint ``reward`` reads on ``task`` when given none (the shipped one), or None."""
+    path = reward_checkpoint(reward, task) if reward in REWARDS else None
+    return file_sha256(path) if path is not None and path.exists() else None
+
+
+def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
+    """The curve a run belongs to: its reward, and the settings that change what the reward teaches.
+
+    ``pinned`` (the run's ``reward_checkpoint.json``) names the checkpoint by content: a run paid by
+    the checkpoint shipped now joins the reward's curve whatever path it was given, and one paid by
+    any other file is labelled with that file's sha256 (a retrained shipped file included).
+    """
     label = cfg["reward"]
-    if cfg.get("reward_checkpoint"):
+    if pinned is not None:
+        if pinned["sha256"] != shipped_sha256(cfg["reward"], cfg["task"]):
+            label += f" (checkpoint {pinned['sha256'][:8]})"
+    elif cfg.get("reward_checkpoint"):
         label += f" ({cfg['reward_checkpoint']})"
     form = drem_form_used(cfg.get("drem_form"), bool(cfg.get("terminate_on_success")))
     reads_drem = cfg["reward"] in REWARDS and REWARDS[cfg["reward"]].checkpoint
@@ -52,7 +66,9 @@ def load_run(run_dir) -> dict:
     rows = read_eval_csv(run_dir / "eval.csv")
     if not rows:
         raise ValueError(f"{run_dir}/eval.csv holds no evaluations yet")
-    return dict(run_dir=str(run_dir), task=cfg["task"], reward=run_label(cfg), seed=cfg.get("seed"), rows=rows)
+    pin = run_dir / "reward_checkpoint.json"
+    pinned = json.loads(pin.read_text()) if pin.exists() else None
+    return dict(run_dir=str(run_dir), task=cfg["task"], reward=run_label(cfg, pinned), seed=cfg.get("seed"), rows=rows)
 
 
 def shared_settings(labels: Sequence[str]) -> list:

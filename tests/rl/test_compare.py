@@ -98,3 +98,30 @@ def test_the_settings_every_curve_of_a_panel_shares_go_to_its_title():
     assert shared_settings(labels) == ["ends at success", "norm state+ft"]
     assert shared_settings(["sparse"]) == []
     assert shared_settings(["drem, shifted", "drem, paper"]) == []
+
+
+def test_runs_are_grouped_by_the_checkpoint_file_that_paid_them(tmp_path):
+    """A copy of the shipped checkpoint joins the reward's curve; a run pinned to another file gets its own."""
+    import shutil
+
+    from drem_maniskill.rl.compare import load_run
+    from drem_maniskill.rl.rewards import reward_checkpoint
+    from drem_maniskill.rl.train_policy import file_sha256
+
+    shipped = reward_checkpoint("drem", "PegInHole-v1")
+    copy = tmp_path / "copy.pt"
+    shutil.copy(shipped, copy)
+    other = tmp_path / "other.pt"
+    other.write_bytes(shipped.read_bytes() + b"retrained")
+    labels = {}
+    for name, path, given in (("default", shipped, None), ("copy", copy, str(copy)), ("old", other, None),
+                              ("unpinned", None, "out/reward/drem.pt")):
+        run = _fake_run(tmp_path / name, "PegInHole-v1", "drem", 0, [0.0, 0.5, 1.0])
+        cfg = json.loads((run / "config.json").read_text())
+        (run / "config.json").write_text(json.dumps({**cfg, "reward_checkpoint": given}))
+        if path is not None:
+            (run / "reward_checkpoint.json").write_text(json.dumps(dict(path=str(path), sha256=file_sha256(path))))
+        labels[name] = load_run(run)["reward"]
+    assert labels["default"] == labels["copy"] == "drem"
+    assert labels["old"] == f"drem (checkpoint {file_sha256(other)[:8]})"
+    assert labels["unpinned"] == "drem (out/reward/drem.pt)"  # runs made before the pin: named by the path given
