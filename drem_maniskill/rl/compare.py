@@ -29,6 +29,10 @@ def shipped_sha256(reward: str, task: str) -> Optional[str]:
     return file_sha256(path) if path is not None and path.exists() else None
 
 
+def _reached(step: Optional[float]):
+    return "not reached" if step is None else round(step)
+
+
 def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
     """The curve a run belongs to: its reward, and the settings that change what the reward teaches.
 
@@ -89,12 +93,18 @@ def aggregate(runs: list[dict]) -> dict:
         curves = np.array([[{r["steps"]: r["success_rate"] for r in run["rows"]}[s] for s in common] for run in group])
         mean = curves.mean(axis=0)
         out[key] = dict(steps=common, mean=mean, min=curves.min(axis=0), max=curves.max(axis=0), std=curves.std(axis=0),
+                        curves=curves,
                         seeds=[run["seed"] for run in group], run_dirs=[run["run_dir"] for run in group])
     return out
 
 
-def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str = "minmax", level: float = 0.5) -> dict:
-    """Plot and tabulate runs: ``<out>/comparison.png``, ``comparison.json``, ``comparison.md``; returns the table."""
+def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str = "minmax",
+                 levels: Sequence[float] = (0.5, 0.8)) -> dict:
+    """Plot and tabulate runs: ``<out>/comparison.png``, ``comparison.json``, ``comparison.md``; returns the table.
+
+    Per curve: the final success and, per level, the steps at which the seeds' mean first reached it
+    (``steps_to_50``, ``steps_to_80``) and at which each seed did (``seed_steps_to_80``, in ``seeds`` order).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -121,11 +131,14 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
             own = ", ".join(part for part in reward.split(", ") if part not in shared)
             line, = ax.plot(x, g["mean"], label=textwrap.fill(f"{own} ({len(g['seeds'])} seeds)", 60))
             ax.fill_between(x, np.clip(lo, 0, 1), np.clip(hi, 0, 1), color=line.get_color(), alpha=0.2)
-            reach = steps_to_reach(g["steps"], list(g["mean"]), level)
-            table.append(dict(task=task, reward=reward, seeds=len(g["seeds"]), final_steps=int(x[-1]),
-                              final_success=float(g["mean"][-1]), final_success_min=float(g["min"][-1]),
-                              final_success_max=float(g["max"][-1]),
-                              steps_to_50=("not reached" if reach is None else round(reach))))
+            row = dict(task=task, reward=reward, seeds=len(g["seeds"]), final_steps=int(x[-1]),
+                       final_success=float(g["mean"][-1]), final_success_min=float(g["min"][-1]),
+                       final_success_max=float(g["max"][-1]), seed_ids=g["seeds"])
+            for level in levels:
+                name = f"_to_{round(level * 100)}"
+                row["steps" + name] = _reached(steps_to_reach(g["steps"], list(g["mean"]), level))
+                row["seed_steps" + name] = [_reached(steps_to_reach(g["steps"], list(c), level)) for c in g["curves"]]
+            table.append(row)
         ax.set_title(task + ("\n" + textwrap.fill(", ".join(shared), 70) if shared else ""), fontsize=9)
         ax.set_xlabel("environment steps")
         ax.set_ylabel("success rate")
@@ -139,12 +152,14 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
     fig.savefig(png, dpi=120)
     plt.close(fig)
 
-    (out_dir / "comparison.json").write_text(json.dumps(dict(level=level, band=band, rows=table), indent=2) + "\n")
-    head = ["task", "reward", "seeds", "final_steps", "final_success", f"steps_to_{int(level * 100)}"]
+    (out_dir / "comparison.json").write_text(json.dumps(dict(levels=list(levels), band=band, rows=table), indent=2) + "\n")
+    names = [f"_to_{round(level * 100)}" for level in levels]
+    head = ["task", "reward", "seeds", "final_steps", "final_success"] + [f"steps{n} (mean; per seed)" for n in names]
     lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for r in table:
         final = f"{r['final_success']:.2f} ({r['final_success_min']:.2f}-{r['final_success_max']:.2f})"
-        lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | {r['steps_to_50']} |")
+        reach = [f"{r['steps' + n]}; {' / '.join(map(str, r['seed_steps' + n]))}" for n in names]
+        lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | " + " | ".join(reach) + " |")
     (out_dir / "comparison.md").write_text("\n".join(lines) + "\n")
     return dict(png=str(png), json=str(out_dir / "comparison.json"), markdown=str(out_dir / "comparison.md"), rows=table)
 

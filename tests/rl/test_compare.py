@@ -44,6 +44,12 @@ def test_compare_two_fake_runs(tmp_path):
     # Mean of the two drem seeds: 0, 0.3, 0.7, 1.0: first at or above 0.5 at step 2000.
     assert rows[("PegInHole-v1", "drem")]["steps_to_50"] == 2000
     assert rows[("PegInHole-v1", "drem")]["seeds"] == 2
+    # 80 %: the mean first at 3000; seed 0 at 3000 (1.0), seed 1 at 2000 (0.8).
+    assert rows[("PegInHole-v1", "drem")]["steps_to_80"] == 3000
+    assert rows[("PegInHole-v1", "drem")]["seed_steps_to_80"] == [3000, 2000]
+    assert rows[("PegInHole-v1", "drem")]["seed_ids"] == [0, 1]
+    assert rows[("PegInHole-v1", "sparse")]["seed_steps_to_50"] == ["not reached"]
+    assert "| 2000; 2000 / 2000 | 3000; 3000 / 2000 |" in open(result["markdown"]).read()
     assert rows[("PegInHole-v1", "sparse")]["steps_to_50"] == "not reached"
     assert rows[("PegInHole-v1", "sparse")]["final_success"] == pytest.approx(0.2)
     assert rows[("USBInsertion-v1", "drem")]["steps_to_50"] == 1000
