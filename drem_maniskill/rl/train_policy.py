@@ -223,7 +223,9 @@ def pin_reward_checkpoint(config: RLConfig, run_dir: Path, resuming: bool) -> Op
     path = reward_checkpoint(config.reward, check_env_id(config.task), config.reward_checkpoint)
     if path is None or not path.exists():
         return None  # no DREM reward, or make_env names the missing file
-    shown = os.path.relpath(path) if not os.path.relpath(path).startswith("..") else str(path)  # no home dirs in the repo's results
+    shown = os.path.relpath(path)
+    if shown.startswith(".."):
+        shown = str(path)  # outside the working directory; inside it, no home dirs in the repo's results
     now = dict(path=shown, sha256=file_sha256(path))
     pin = run_dir / "reward_checkpoint.json"
     if resuming and pin.exists():
