@@ -125,6 +125,7 @@ class RewardSpec:
     make: Callable[[str, dict], gym.Env]
     stock_tasks: bool = False  # also on ManiSkill's own tasks (they have no F/T, engineered or dense of ours)
     checkpoint: bool = False  # reads a DREM checkpoint (RLConfig.reward_checkpoint replaces the shipped one)
+    image_only: bool = False  # the checkpoint it reads by default is the image-only one (drem_image.pt)
     learner: Optional[Callable] = None  # (env, task, seed, options, state, gym_kwargs) -> LearnedReward
 
     def supports(self, task: str) -> bool:
@@ -132,15 +133,20 @@ class RewardSpec:
         return is_insertion_task(task) or self.stock_tasks
 
 
+def _drem_spec(about: str, image_only: bool, **kwargs) -> RewardSpec:
+    """A DREM reward's spec: the env it makes and the checkpoint it reads agree on ``image_only``."""
+    return RewardSpec(about, _drem(image_only), checkpoint=True, image_only=image_only, **kwargs)
+
+
 REWARDS: dict[str, RewardSpec] = {
     "sparse": RewardSpec("1 on success, else 0", env_reward_mode("sparse"), stock_tasks=True),
     "dense": RewardSpec("the task's staged dense reward in [0, 1] (ManiSkill style)", env_reward_mode("normalized_dense")),
     "engineered": RewardSpec("-exp(kappa ||x - x_G||), the paper's Engineered", env_reward_mode("engineered")),
-    "drem": RewardSpec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", _drem(False),
-                       stock_tasks=True, checkpoint=True),
+    "drem": _drem_spec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", False,
+                       stock_tasks=True),
     "drem-guarded": RewardSpec("DREM scaled down where the model cannot reconstruct the state (not in the paper; "
                                "docs/drem.md)", _drem_guarded, checkpoint=True),
-    "drem-image": RewardSpec("DREM on images only, rewards/<task>/drem_image.pt", _drem(True), checkpoint=True),
+    "drem-image": _drem_spec("DREM on images only, rewards/<task>/drem_image.pt", True),
     # VICE replaces the reward; the env's sparse one is cheap and is kept in info["original_reward"].
     "vice": RewardSpec("VICE-RAQ success classifier on the images", env_reward_mode("sparse"), learner=_vice_learner),
 }
@@ -148,9 +154,10 @@ REWARDS: dict[str, RewardSpec] = {
 
 def reward_checkpoint(name: str, task: str, given: Optional[str] = None) -> Optional[Path]:
     """The DREM checkpoint reward ``name`` reads on ``task`` (``given``, else the shipped one); None if it reads none."""
-    if not reward_spec(name).checkpoint:
+    spec = reward_spec(name)
+    if not spec.checkpoint:
         return None
-    return Path(given) if given else drem_checkpoints.default_checkpoint(task, image_only=name == "drem-image")
+    return Path(given) if given else drem_checkpoints.default_checkpoint(task, image_only=spec.image_only)
 
 
 def reward_spec(name: str) -> RewardSpec:
