@@ -54,7 +54,9 @@ def _cmd_sample(args) -> None:
                                        randomize_colors=args.randomize_colors,
                                        randomize_placement=args.randomize_placement, outward_depth=args.outward_depth,
                                        outward_lineages=args.outward_lineages,
-                                       outward_children=args.outward_children).items() if v is not None}
+                                       outward_children=args.outward_children, face_depth=args.face_depth,
+                                       face_lineages=args.face_lineages, face_children=args.face_children,
+                                       face_step=args.face_step).items() if v is not None}
     config = SamplerConfig.preset(args.preset, **overrides)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
@@ -174,6 +176,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="depths sampled past the start region, away from the expert's path (not in the paper; default 0: off)")
     p.add_argument("--outward-lineages", type=int, help="outward directions, one lineage each (default: 12)")
     p.add_argument("--outward-children", type=int, help="random actions per outward seed and depth (default: 100)")
+    p.add_argument("--face-depth", type=int,
+                   help="depths of lineages sliding the part over the socket's face from the opening (not in the paper; "
+                        "default 0: off)")
+    p.add_argument("--face-lineages", type=int, help="face directions, one lineage each (default: 8)")
+    p.add_argument("--face-children", type=int, help="random actions per face seed and depth (default: 60)")
+    p.add_argument("--face-step", type=float, help="metres of travel the face phase's actions span (default: 0.0015)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")

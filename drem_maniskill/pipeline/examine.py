@@ -141,6 +141,36 @@ def contact_plateau(align: Sequence[dict], direct_final: float, contact: float =
                 fraction=None if mean is None or not direct_final else mean / direct_final)
 
 
+FACE_LEAD_RANGE_MM = (0.5, 6.5)  # tip distances from the axis over which the face's lead is fitted
+
+
+def face_lead(rows: Sequence[dict], reward: str, start: float, inserted: float) -> dict:
+    """How a reward reads the part pressed on the socket's face near the opening (``scripts/face_profile.py`` rows).
+
+    ``rows``: ``{"tip_mm": [x, y, z], reward: {"values": [...]}}`` per held position (socket frame,
+    z from the top face). Of the rows on the face (tip not below it by a millimetre) within
+    ``FACE_LEAD_RANGE_MM`` of the axis: ``to_go``, the mean fraction of the reward's rise from the
+    start to a finished insertion still to go there (0 inserted, 1 start), and ``lead``, the reward's
+    rise per millimetre towards the opening in units of its spread across episodes (the residual
+    standard deviation of a line fitted to every episode's value): a policy pressing on the face
+    can follow a reward along it to the opening only where ``lead`` is well above 0.
+    """
+    r, v = [], []
+    for row in rows:
+        x, y, z = row["tip_mm"]
+        radial = float(np.hypot(x, y))
+        if z > -1.0 and FACE_LEAD_RANGE_MM[0] <= radial <= FACE_LEAD_RANGE_MM[1]:
+            r += [radial] * len(row[reward]["values"])
+            v += list(row[reward]["values"])
+    if len(set(r)) < 2:
+        return dict(positions=0, to_go=None, slope_per_mm=None, spread=None, lead=None)
+    r, v = np.asarray(r), np.asarray(v)
+    slope, offset = np.polyfit(r, v, 1)
+    spread = float(np.std(v - (slope * r + offset)))
+    return dict(positions=len(set(r.tolist())), to_go=float(np.mean((inserted - v) / (inserted - start))),
+                slope_per_mm=float(slope), spread=spread, lead=float(-slope / max(spread, 1e-6)))
+
+
 def contact_losses(episode: dict, contact: float = CONTACT_FORCE) -> np.ndarray:
     """The steps whose wrist force reads below 1 N right after a step above ``contact``: where contact was lost."""
     f = np.asarray(episode["force"])

@@ -97,6 +97,20 @@ class SamplerConfig:
     """Random actions (full range) per outward seed and depth."""
     outward_elevations: tuple = (0.0, -35.0, -60.0)
     """Degrees above the horizontal of the outward directions (negative: downwards, towards the floor)."""
+    face_depth: int = 0
+    """Depths of the face phase (not in the paper; 0: off), sampled after the others on our tasks. The backward
+    phase's children of the seed at the opening land anywhere on the socket's face within a random action of it,
+    all one depth from that seed, so the reward learns no lead along the face to the opening (docs/drem.md). Each
+    face lineage starts at that seed and keeps the child that slid farthest along its own direction, pressing on
+    the face, a few millimetres per depth: the part on the face is labelled by how far it has slid from the opening."""
+    face_lineages: int = 8
+    """Face directions: azimuths spread evenly, all at ``face_elevation``."""
+    face_children: int = 60
+    """Random actions per face seed and depth."""
+    face_step: float = 0.0015
+    """Metres: the arm actions of the face phase span this much end-effector travel (the farthest child moves about this far)."""
+    face_elevation: float = -30.0
+    """Degrees above the horizontal of the face directions (negative: pressing down on the face as it slides)."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -113,6 +127,17 @@ def outward_directions(config: SamplerConfig) -> np.ndarray:
     azimuth = 2 * np.pi * np.arange(k) / k
     elevation = np.deg2rad(np.asarray(config.outward_elevations, float))[np.arange(k) % len(config.outward_elevations)]
     return np.stack([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)], -1)
+
+
+def face_directions(config: SamplerConfig) -> np.ndarray:
+    """Unit vectors ``[face_lineages, 3]`` (world frame at the expert's placement) the face lineages slide along."""
+    azimuth = 2 * np.pi * np.arange(config.face_lineages) / config.face_lineages
+    elevation = np.deg2rad(config.face_elevation)
+    return np.stack([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation),
+                     np.full(config.face_lineages, np.sin(elevation))], -1)
+
+
+FACE_ENTRY_HEIGHT = -0.001  # m: a seed's tip above this (socket frame) is out of the opening, not inserted
 
 
 class NoStartRegionError(RuntimeError):
@@ -410,6 +435,8 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
         start_depth = _mark_start_depth(partial, depth)
         if config.outward_depth > 0:
             depth, seeds = _sample_outward(partial, sampler, pool, config, start_depth, depth, seeds, seed_nodes, progress)
+        if config.face_depth > 0:
+            _sample_face(partial, sampler, pool, config, start_depth, progress)
         with h5py.File(partial, "a") as f:
             f.attrs["complete"] = True
             f.attrs["final_depth"] = depth
@@ -490,6 +517,64 @@ def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: Sample
     bar.close()
     return depth, seeds
 
+def face_entry_depth(path, start_depth: int) -> int:
+    """The first backward depth whose seed's tip is out of the opening (``FACE_ENTRY_HEIGHT``): where the part enters."""
+    with h5py.File(path, "r") as f:
+        if "tip_in_socket" not in f:
+            raise ValueError(f"{path} holds no tip_in_socket: the face phase (--face-depth) needs one of our insertion tasks")
+        for depth in range(start_depth + 1):
+            node = int(f[f"seeds/depth_{depth}/node"][0])
+            if f["tip_in_socket"][node][2] > FACE_ENTRY_HEIGHT:
+                return depth
+    raise ValueError(f"no seed of {path} up to the start region is out of the opening; is the expert's goal inserted?")
+
+
+def _rotation_from(q: np.ndarray, q0: np.ndarray) -> np.ndarray:
+    """Radians between quaternions ``q [n, 4]`` and ``q0 [4]``."""
+    return 2 * np.arccos(np.clip(np.abs(q @ q0), 0.0, 1.0))
+
+
+def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, start_depth: int,
+                 progress: bool) -> None:
+    """The face phase (``SamplerConfig.face_depth``): lineages that slide the part over the face from the opening.
+
+    Lineage ``l``'s seed at face step ``k`` is labelled ``entry + k``: ``k`` small moves from the seed
+    at the opening, which is ``entry`` from the goal. The child kept is the one farthest along the
+    lineage's direction, less ``rotation_weight`` metres per radian it turned, so the part stays upright,
+    and out of the opening (a child that went in is near the goal and stays a plain node).
+    """
+    entry = face_entry_depth(partial, start_depth)
+    directions = face_directions(config)
+    lineages = len(directions)
+    with h5py.File(partial, "r") as f:
+        done = int(f.attrs.get("face_completed", 0))
+        g = f[f"seeds/depth_{entry}"] if done == 0 else f[f"seeds/face_{done}"]
+        states, flags, nodes = g["state"][()], g["in_start_region"][()], [int(n) for n in g["node"][()]]
+        entry_node = int(f[f"seeds/depth_{entry}/node"][0])
+        origin = f["tcp_pose"][entry_node][:3].astype(np.float64)
+        upright = f["tcp_pose"][entry_node][3:7].astype(np.float64)
+    if done == 0:
+        states, flags, nodes = [states[0]] * lineages, [flags[0]] * lineages, [nodes[0]] * lineages
+    seeds = [dict(state=s, in_start_region=r) for s, r in zip(states, flags)]
+    scale = float(np.clip(config.face_step / sampler.translation_limit, config.min_action_scale, config.action_scale))
+    bar = tqdm(total=config.face_depth, initial=done, desc="face sampling", unit="depth", disable=not progress)
+    for k in range(done, config.face_depth):
+        merged = _children_of(sampler, pool, config, seeds, nodes, entry + k, config.face_children, scale, stream=4)
+        along = (merged["ee"][:, :3] - origin) @ directions.T  # [n, lineages]
+        turned = _rotation_from(merged["ee"][:, 3:7].astype(np.float64), upright)
+        score = along - config.rotation_weight * turned[:, None]
+        # A child that went down into the opening is near the goal, not on the face: never a face seed.
+        score[merged["tip_in_socket"][:, 2] < FACE_ENTRY_HEIGHT] = -np.inf
+        score = score.reshape(lineages, config.face_children, lineages)
+        best = score[np.arange(lineages), :, np.arange(lineages)].argmax(1)
+        chosen = np.arange(lineages) * config.face_children + best
+        nodes = _append_depth(partial, merged, entry + k + 1, chosen, group=f"face_{k + 1}",
+                              counter="face_completed", count=k + 1)
+        seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
+        bar.update(1)
+    bar.close()
+
+
 def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarray, config: SamplerConfig,
                     sampler: ChildSampler, goal_index: int):
     header = dict(config=asdict(config), env_id=expert.env_id, env_kwargs=expert.env_kwargs,
@@ -540,10 +625,12 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
     return 0, [dict(state=flat[0], in_start_region=in_region)], [0]
 
 
-def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray) -> list:
+def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray, group: Optional[str] = None,
+                  counter: str = "completed_depth", count: Optional[int] = None) -> list:
     """Append one depth's nodes and its chosen seeds in one go; returns the seeds' node indices.
 
-    ``completed_depth`` and ``node_count`` are written last, so a run interrupted half-way
+    The seeds go to ``seeds/<group>`` (default ``depth_<depth>``). ``counter`` (``completed_depth``;
+    the face phase keeps its own) and ``node_count`` are written last, so a run interrupted half-way
     through a depth resumes from the previous one (extra rows are cut off on resume).
     """
     n = len(data["tcp_pose"])
@@ -568,14 +655,14 @@ def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray) -> lis
                 f[key].resize(first + n, axis=0)
                 f[key][first:] = value
         nodes = [first + int(i) for i in chosen]
-        g = f.require_group(f"seeds/depth_{depth}")
+        g = f.require_group(f"seeds/{group or f'depth_{depth}'}")
         for key in list(g.keys()):
             del g[key]
         g.create_dataset("state", data=data["state"][chosen])
         g.create_dataset("in_start_region", data=data["in_start_region"][chosen].astype(bool))
         g.create_dataset("node", data=np.array(nodes, np.int64))
         f.attrs["node_count"] = first + n
-        f.attrs["completed_depth"] = depth
+        f.attrs[counter] = depth if count is None else count
     return nodes
 
 

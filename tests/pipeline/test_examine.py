@@ -1,5 +1,6 @@
 """The examination's measures."""
 
+import numpy as np
 import pytest
 
 
@@ -36,3 +37,28 @@ def test_first_contact_loss_reads_the_reward_one_and_three_steps_after():
     from drem_maniskill.pipeline.examine import contact_loss_drop
 
     assert contact_loss_drop(ep) == (0.4, 0.0)  # the older measure: the last loss
+
+
+def test_face_lead_is_the_rise_towards_the_opening_in_units_of_the_spread_on_the_face_only():
+    from drem_maniskill.pipeline.examine import face_lead
+
+    rng = np.random.default_rng(0)
+
+    def rows(reward_at):
+        out = []
+        for mm in (1, 2, 3, 4, 6):
+            out.append(dict(tip_mm=[mm, 0.0, 0.0], r=dict(values=[reward_at(mm) + 0.01 * e for e in rng.standard_normal(5)])))
+        # Inserted (below the face) and far off the axis: not on the face near the opening.
+        out.append(dict(tip_mm=[0.0, 0.0, -2.0], r=dict(values=[5.0] * 5)))
+        out.append(dict(tip_mm=[0.0, 12.0, 0.0], r=dict(values=[-5.0] * 5)))
+        return out
+
+    leading = face_lead(rows(lambda mm: 0.8 - 0.02 * mm), "r", start=0.0, inserted=1.0)
+    flat = face_lead(rows(lambda mm: 0.8), "r", start=0.0, inserted=1.0)
+    assert leading["positions"] == 5 and leading["slope_per_mm"] == pytest.approx(-0.02, abs=0.005)
+    assert leading["lead"] > 1.0 and abs(flat["lead"]) < 0.5
+    assert flat["spread"] == pytest.approx(0.01, abs=0.004)
+    assert flat["to_go"] == pytest.approx(0.2, abs=0.01)  # (1 - 0.8) / (1 - 0)
+    # Another reward's scale and sign: engineered-like, -1.2 at start-ward, -1.0 inserted.
+    assert face_lead(rows(lambda mm: 0.8), "r", start=-2.0, inserted=1.0)["to_go"] == pytest.approx(0.2 / 3, abs=0.01)
+    assert face_lead([rows(lambda mm: 0.8)[-1]], "r", 0.0, 1.0)["lead"] is None

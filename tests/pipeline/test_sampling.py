@@ -11,10 +11,13 @@ from drem_maniskill.envs import TASKS, PegInHoleEnv
 from drem_maniskill.experts.scripted import HoldPolicy
 from drem_maniskill.pipeline.examine import HOLD_POSITIONS
 from drem_maniskill.pipeline.sampling import (
+    FACE_ENTRY_HEIGHT,
     ChildSampler,
     NoStartRegionError,
     SamplerConfig,
     backward_sample,
+    face_directions,
+    face_entry_depth,
     outward_directions,
 )
 from drem_maniskill.pipeline import sampling
@@ -67,10 +70,10 @@ def test_outward_lineages_leave_the_start_region_along_their_directions_and_resu
     out = tmp_path / "tree.h5"
     real_append = sampling._append_depth
 
-    def interrupted(path, data, depth, chosen):
+    def interrupted(path, data, depth, chosen, **kwargs):
         if len(chosen) == 4 and depth == int(h5py.File(path, "r").attrs["start_depth"]) + 2:
             raise KeyboardInterrupt
-        return real_append(path, data, depth, chosen)
+        return real_append(path, data, depth, chosen, **kwargs)
 
     monkeypatch.setattr(sampling, "_append_depth", interrupted)
     with pytest.raises(KeyboardInterrupt):
@@ -193,3 +196,45 @@ def test_actions_follow_the_experts_step_when_asked():
     assert action_scale_at(3, ee, config, 0.02) == pytest.approx(1.0)  # 2 x 1 cm = 2 cm: the whole range
     assert action_scale_at(40, ee, config, 0.02) == pytest.approx(0.05)  # past the demo's start: no step, the floor
     assert action_scale_at(0, ee, SamplerConfig(action_scale=0.7), 0.02) == 0.7  # off: the fixed range
+
+
+@pytest.mark.slow
+def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(pipeline, tmp_path, monkeypatch):
+    """Each face lineage moves out of the opening along its direction, one depth per step, and resumes."""
+    config = SamplerConfig.preset("tiny", face_depth=3, face_lineages=4, face_children=6)
+    out = tmp_path / "tree.h5"
+    real_append = sampling._append_depth
+
+    def interrupted(path, data, depth, chosen, **kwargs):
+        if kwargs.get("group") == "face_2":
+            raise KeyboardInterrupt
+        return real_append(path, data, depth, chosen, **kwargs)
+
+    monkeypatch.setattr(sampling, "_append_depth", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        backward_sample(pipeline["expert"], str(out), config, progress=False)
+    monkeypatch.setattr(sampling, "_append_depth", real_append)
+    backward_sample(pipeline["expert"], str(out), config, progress=False)  # resumes the face phase
+    with h5py.File(out, "r") as f, h5py.File(pipeline["tree"], "r") as ref:
+        n = len(ref["depth"])
+        np.testing.assert_allclose(f["tcp_pose"][:n], ref["tcp_pose"][()], atol=1e-4)
+        entry = face_entry_depth(out, int(f.attrs["start_depth"]))
+        assert int(f.attrs["face_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 6
+        depth, parent, tip, tcp = f["depth"][n:], f["parent"][n:], f["tip_in_socket"][()], f["tcp_pose"][()]
+        # Face step k's nodes are k small moves from the seed at the opening, which is `entry` from the goal.
+        assert np.array_equal(depth, np.repeat(entry + np.arange(1, 4), 4 * 6))
+        entry_node = int(f["seeds/depth_%d/node" % entry][0])
+        assert np.all(parent[:24] == entry_node)
+        assert tip[entry_node, 2] > FACE_ENTRY_HEIGHT >= tip[int(f["seeds/depth_%d/node" % (entry - 1)][0]), 2]
+        along = []
+        for k in range(1, 4):
+            seeds = f[f"seeds/face_{k}/node"][()]
+            assert len(seeds) == 4 and np.all(tip[seeds, 2] > FACE_ENTRY_HEIGHT)  # out of the opening
+            if k > 1:  # each lineage's children hang under its own previous seed
+                kids = n + 24 * (k - 1) + np.arange(24).reshape(4, 6)
+                assert np.all(f["parent"][()][kids] == f[f"seeds/face_{k - 1}/node"][()][:, None])
+            flat = face_directions(config)[:, :2]
+            along.append(np.einsum("lx,lx->l", tcp[seeds, :2] - tcp[entry_node, :2], flat / np.linalg.norm(flat, axis=1, keepdims=True)))
+        along = np.array(along)
+        # Each lineage slides away from the opening along its own direction, a millimetre or more in three steps (of 6 children each).
+        assert np.all(np.diff(along, axis=0) > 0) and np.all(along[-1] > 0.001), along
