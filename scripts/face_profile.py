@@ -129,11 +129,11 @@ def _plot(result: dict, rewards: list, path: str) -> None:
         for n in rewards:
             for axis, style in (("x", "-o"), ("y", "--s")):
                 rows = [r for r in result["positions"] if r["height"] == height and (r["axis"] == axis or r["offset_mm"] == 0)]
-                ax.plot([r["offset_mm"] for r in rows], [r[n]["to_go"] for r in rows], style, ms=3,
+                ax.plot([float(np.hypot(*r["tip_mm"][:2])) for r in rows], [r[n]["to_go"] for r in rows], style, ms=3,
                         label=f"{n} ({axis})", color=f"C{rewards.index(n)}")
         ax.axhline(0, color="k", lw=0.5)
-        ax.set_title(f"{result['task']}: tip {height} the face")
-        ax.set_xlabel("distance of the tip from the opening's axis (mm)")
+        ax.set_title(f"{result['task']}: tip {'pressed on' if height == 'pressed' else height} the face")
+        ax.set_xlabel("distance of the tip from the opening's axis, reached (mm)")
     axes[0].set_ylabel("fraction of the rise still to go\n(0 inserted, 1 start)")
     axes[-1].legend(fontsize=7)
     fig.tight_layout()

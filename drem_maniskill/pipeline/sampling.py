@@ -138,6 +138,7 @@ def face_directions(config: SamplerConfig) -> np.ndarray:
 
 
 FACE_ENTRY_HEIGHT = -0.001  # m: a seed's tip above this (socket frame) is out of the opening, not inserted
+FACE_SEED_HEIGHT = -0.0005  # m: a face seed's tip is above this, on or over the face, not caught in the opening's mouth
 
 
 class NoStartRegionError(RuntimeError):
@@ -564,7 +565,7 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
         turned = _rotation_from(merged["ee"][:, 3:7].astype(np.float64), upright)
         score = along - config.rotation_weight * turned[:, None]
         # A child that went down into the opening is near the goal, not on the face: never a face seed.
-        score[merged["tip_in_socket"][:, 2] < FACE_ENTRY_HEIGHT] = -np.inf
+        score[merged["tip_in_socket"][:, 2] < FACE_SEED_HEIGHT] = -np.inf
         score = score.reshape(lineages, config.face_children, lineages)
         best = score[np.arange(lineages), :, np.arange(lineages)].argmax(1)
         chosen = np.arange(lineages) * config.face_children + best
@@ -575,24 +576,39 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     bar.close()
 
 
+RESUMABLE_SAMPLER_FIELDS = ("max_depth",)  # a run that gave up at max_depth resumes with a larger one
+
+
+def _resumable(saved: dict, now: dict) -> bool:
+    """Whether a partial tree with header ``saved`` can be continued under ``now``: the same but for ``max_depth``."""
+    def strip(h):
+        return {**h, "config": {k: v for k, v in h.get("config", {}).items() if k not in RESUMABLE_SAMPLER_FIELDS}}
+    return strip(saved) == strip(now)
+
+
 def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarray, config: SamplerConfig,
                     sampler: ChildSampler, goal_index: int):
     header = dict(config=asdict(config), env_id=expert.env_id, env_kwargs=expert.env_kwargs,
                   episode_seed=expert.episode_seed, expert_length=goal_index, camera_map=sampler.adapter.camera_map,
                   has_ft=sampler.adapter.has_ft, action_dim=sampler.action_dim)
     if partial.exists():
+        resumed = None
         try:
             with h5py.File(partial, "r") as f:
-                if json.loads(f.attrs["header"]) == json.loads(json.dumps(header)):
+                if _resumable(json.loads(f.attrs["header"]), json.loads(json.dumps(header))):
                     depth = int(f.attrs["completed_depth"])
                     g = f[f"seeds/depth_{depth}"]
                     seeds = [dict(state=s, in_start_region=r) for s, r in zip(g["state"][()], g["in_start_region"][()])]
-                    nodes = [int(n) for n in g["node"][()]]
-                _truncate(partial)
-                return depth, seeds, nodes
-        except (OSError, KeyError, NameError):
-            pass  # unreadable or from another config: start over
-        partial.unlink()
+                    resumed = depth, seeds, [int(n) for n in g["node"][()]]
+        except (OSError, KeyError):
+            pass  # unreadable: start over
+        if resumed is not None:
+            # Closed first: HDF5 will not open a file for writing that this process holds open for reading.
+            _truncate(partial)
+            with h5py.File(partial, "a") as f:
+                f.attrs["header"] = json.dumps(header)  # a raised max_depth is the run's own from now on
+            return resumed
+        partial.unlink()  # from another config: start over
     # Depth 0: the goal state, as the expert's last step recorded it.
     goal = state_at(expert.states, goal_index)
     sampler.adapter.set_state(broadcast_state(goal, sampler.n))
