@@ -107,7 +107,8 @@ def main() -> None:
     lead = {n: face_lead(pressed, n, r_start[n], r_ins[n]) for n in rewards}
     for n, x in lead.items():
         print(f"{n}: on the face {FACE_LEAD_RANGE_MM[0]}-{FACE_LEAD_RANGE_MM[1]} mm from the axis, to go "
-              f"{x['to_go']:.2f}, lead {x['lead']:.2f} spreads per mm (slope {x['slope_per_mm']:.4f}/mm, spread {x['spread']:.3f})")
+              f"{x['to_go']:.2f}, order {x['order']:.2f}, lead {x['lead']:.2f} spreads per mm (slope "
+              f"{x['slope_per_mm']:.4f}/mm, spread {x['spread']:.3f}; between episodes {x['between_episodes']:.3f})")
     result = dict(task=args.task, seeds=args.seeds, checkpoints=names, press_depth_mm=PRESS_DEPTH * 1000,
                   start=r_start, inserted=r_ins, inserted_episodes=len(inserted), face_lead=lead, positions=positions)
     if args.out:

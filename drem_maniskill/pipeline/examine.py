@@ -147,28 +147,43 @@ FACE_LEAD_RANGE_MM = (0.5, 6.5)  # tip distances from the axis over which the fa
 def face_lead(rows: Sequence[dict], reward: str, start: float, inserted: float) -> dict:
     """How a reward reads the part pressed on the socket's face near the opening (``scripts/face_profile.py`` rows).
 
-    ``rows``: ``{"tip_mm": [x, y, z], reward: {"values": [...]}}`` per held position (socket frame,
-    z from the top face). Of the rows on the face (tip not below it by a millimetre) within
-    ``FACE_LEAD_RANGE_MM`` of the axis: ``to_go``, the mean fraction of the reward's rise from the
-    start to a finished insertion still to go there (0 inserted, 1 start), and ``lead``, the reward's
-    rise per millimetre towards the opening in units of its spread across episodes (the residual
-    standard deviation of a line fitted to every episode's value): a policy pressing on the face
-    can follow a reward along it to the opening only where ``lead`` is well above 0.
+    ``rows``: ``{"tip_mm": [x, y, z], reward: {"values": [one per episode, same episodes in every row]}}``
+    per held position (socket frame, z from the top face). Of the rows on the face (tip not below it
+    by a millimetre) within ``FACE_LEAD_RANGE_MM`` of the axis:
+
+    * ``to_go``: the mean fraction of the reward's rise from the start to a finished insertion
+      still to go there (0 inserted, 1 start): what a policy resting on the face forgoes;
+    * within each episode (its colours and placement), a line fitted to reward against distance
+      from the axis: ``slope_per_mm`` (mean), ``spread`` (mean residual standard deviation), and
+      ``lead = -slope_per_mm / spread``, the rise per millimetre towards the opening in units of
+      that noise; ``order``, the mean Spearman correlation of reward with closeness to the axis
+      (1: the reward always rises towards the opening). A policy on the face can follow a reward
+      to the opening only where these are well above 0;
+    * ``between_episodes``: the standard deviation of the episodes' mean rewards there (what
+      colours and placement shift the whole face by, which a single episode does not see).
     """
-    r, v = [], []
+    on_face = []
     for row in rows:
         x, y, z = row["tip_mm"]
         radial = float(np.hypot(x, y))
         if z > -1.0 and FACE_LEAD_RANGE_MM[0] <= radial <= FACE_LEAD_RANGE_MM[1]:
-            r += [radial] * len(row[reward]["values"])
-            v += list(row[reward]["values"])
-    if len(set(r)) < 2:
-        return dict(positions=0, to_go=None, slope_per_mm=None, spread=None, lead=None)
-    r, v = np.asarray(r), np.asarray(v)
-    slope, offset = np.polyfit(r, v, 1)
-    spread = float(np.std(v - (slope * r + offset)))
-    return dict(positions=len(set(r.tolist())), to_go=float(np.mean((inserted - v) / (inserted - start))),
-                slope_per_mm=float(slope), spread=spread, lead=float(-slope / max(spread, 1e-6)))
+            on_face.append((radial, np.asarray(row[reward]["values"], float)))
+    if len({r for r, _ in on_face}) < 3:
+        return dict(positions=len(on_face), to_go=None, slope_per_mm=None, spread=None, lead=None, order=None,
+                    between_episodes=None)
+    r = np.array([p for p, _ in on_face])
+    v = np.stack([vals for _, vals in on_face])  # [positions, episodes]
+    slopes, spreads, orders = [], [], []
+    for e in range(v.shape[1]):
+        slope, offset = np.polyfit(r, v[:, e], 1)
+        slopes.append(slope)
+        spreads.append(np.std(v[:, e] - (slope * r + offset)))
+        rho = spearmanr(-r, v[:, e]).correlation
+        orders.append(0.0 if np.isnan(rho) else rho)
+    slope, spread = float(np.mean(slopes)), float(np.mean(spreads))
+    return dict(positions=len(on_face), to_go=float(np.mean((inserted - v) / (inserted - start))),
+                slope_per_mm=slope, spread=spread, lead=float(-slope / max(spread, 1e-6)),
+                order=float(np.mean(orders)), between_episodes=float(np.std(v.mean(0))))
 
 
 def contact_losses(episode: dict, contact: float = CONTACT_FORCE) -> np.ndarray:

@@ -39,26 +39,31 @@ def test_first_contact_loss_reads_the_reward_one_and_three_steps_after():
     assert contact_loss_drop(ep) == (0.4, 0.0)  # the older measure: the last loss
 
 
-def test_face_lead_is_the_rise_towards_the_opening_in_units_of_the_spread_on_the_face_only():
+def test_face_lead_is_the_rise_towards_the_opening_within_each_episode_on_the_face_only():
     from drem_maniskill.pipeline.examine import face_lead
 
     rng = np.random.default_rng(0)
+    offsets = np.array([0.0, 0.3, -0.3, 0.1, -0.1] * 2)  # per episode: colours and placement shift the whole face
 
-    def rows(reward_at):
+    def rows(reward_at, shift=0.0):
         out = []
         for mm in (1, 2, 3, 4, 6):
-            out.append(dict(tip_mm=[mm, 0.0, 0.0], r=dict(values=[reward_at(mm) + 0.01 * e for e in rng.standard_normal(5)])))
+            noise = 0.01 * rng.standard_normal(10)
+            out.append(dict(tip_mm=[mm, 0.0, 0.0], r=dict(values=list(reward_at(mm) + shift * offsets + noise))))
         # Inserted (below the face) and far off the axis: not on the face near the opening.
-        out.append(dict(tip_mm=[0.0, 0.0, -2.0], r=dict(values=[5.0] * 5)))
-        out.append(dict(tip_mm=[0.0, 12.0, 0.0], r=dict(values=[-5.0] * 5)))
+        out.append(dict(tip_mm=[0.0, 0.0, -2.0], r=dict(values=[5.0] * 10)))
+        out.append(dict(tip_mm=[0.0, 12.0, 0.0], r=dict(values=[-5.0] * 10)))
         return out
 
     leading = face_lead(rows(lambda mm: 0.8 - 0.02 * mm), "r", start=0.0, inserted=1.0)
     flat = face_lead(rows(lambda mm: 0.8), "r", start=0.0, inserted=1.0)
     assert leading["positions"] == 5 and leading["slope_per_mm"] == pytest.approx(-0.02, abs=0.005)
-    assert leading["lead"] > 1.0 and abs(flat["lead"]) < 0.5
-    assert flat["spread"] == pytest.approx(0.01, abs=0.004)
+    assert leading["lead"] > 1.5 and leading["order"] > 0.8
+    assert abs(flat["lead"]) < 0.75 and abs(flat["order"]) < 0.4
     assert flat["to_go"] == pytest.approx(0.2, abs=0.01)  # (1 - 0.8) / (1 - 0)
-    # Another reward's scale and sign: engineered-like, -1.2 at start-ward, -1.0 inserted.
+    # An offset per episode moves the whole face: it is reported apart and does not hide the lead.
+    shifted = face_lead(rows(lambda mm: 0.8 - 0.02 * mm, shift=1.0), "r", start=0.0, inserted=1.0)
+    assert shifted["lead"] > 1.5 and shifted["order"] > 0.8 and shifted["between_episodes"] > 0.1 > leading["between_episodes"]
+    # Another reward's scale and sign: the same fraction still to go.
     assert face_lead(rows(lambda mm: 0.8), "r", start=-2.0, inserted=1.0)["to_go"] == pytest.approx(0.2 / 3, abs=0.01)
-    assert face_lead([rows(lambda mm: 0.8)[-1]], "r", 0.0, 1.0)["lead"] is None
+    assert face_lead(rows(lambda mm: 0.8)[-2:], "r", 0.0, 1.0)["lead"] is None
