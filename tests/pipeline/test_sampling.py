@@ -62,6 +62,24 @@ def _count_depths(monkeypatch) -> list:
     return calls
 
 
+def _interrupt_then_resume(expert: str, out, config: SamplerConfig, monkeypatch, stop_at) -> list:
+    """Sample until ``stop_at(path, depth, chosen, kwargs)`` says so (KeyboardInterrupt), then resume; the resume's ``_count_depths``."""
+    real_append = sampling._append_depth
+
+    def interrupted(path, data, depth, chosen, **kwargs):
+        if stop_at(path, depth, chosen, kwargs):
+            raise KeyboardInterrupt
+        return real_append(path, data, depth, chosen, **kwargs)
+
+    monkeypatch.setattr(sampling, "_append_depth", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        backward_sample(expert, str(out), config, progress=False)
+    monkeypatch.setattr(sampling, "_append_depth", real_append)
+    calls = _count_depths(monkeypatch)
+    backward_sample(expert, str(out), config, progress=False)
+    return calls
+
+
 @pytest.mark.slow
 def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path, monkeypatch):
     out = tmp_path / "tree.h5"
@@ -92,19 +110,9 @@ def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path, monkeypatch):
 def test_outward_lineages_leave_the_start_region_along_their_directions_and_resume(pipeline, tmp_path, monkeypatch):
     config = SamplerConfig.preset("tiny", outward_depth=3, outward_lineages=4, outward_children=6)
     out = tmp_path / "tree.h5"
-    real_append = sampling._append_depth
-
-    def interrupted(path, data, depth, chosen, **kwargs):
-        if len(chosen) == 4 and depth == int(h5py.File(path, "r").attrs["start_depth"]) + 2:
-            raise KeyboardInterrupt
-        return real_append(path, data, depth, chosen, **kwargs)
-
-    monkeypatch.setattr(sampling, "_append_depth", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        backward_sample(pipeline["expert"], str(out), config, progress=False)
-    monkeypatch.setattr(sampling, "_append_depth", real_append)
-    calls = _count_depths(monkeypatch)
-    backward_sample(pipeline["expert"], str(out), config, progress=False)  # resumes the outward phase
+    calls = _interrupt_then_resume(  # interrupted in the outward phase's second depth, then resumed
+        pipeline["expert"], out, config, monkeypatch,
+        lambda path, depth, chosen, kw: len(chosen) == 4 and depth == int(h5py.File(path, "r").attrs["start_depth"]) + 2)
     assert calls == [calls[0] + i for i in range(len(calls))] and len(calls) == 2  # outward depths 2 and 3 only
     with h5py.File(out, "r") as f, h5py.File(pipeline["tree"], "r") as ref:
         start, final = int(f.attrs["start_depth"]), int(f.attrs["final_depth"])
@@ -229,19 +237,8 @@ def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(
     """Each face lineage moves out of the opening along its direction, one depth per step, and resumes."""
     config = SamplerConfig.preset("tiny", face_depth=3, face_lineages=4, face_children=6)
     out = tmp_path / "tree.h5"
-    real_append = sampling._append_depth
-
-    def interrupted(path, data, depth, chosen, **kwargs):
-        if kwargs.get("group") == "face_2":
-            raise KeyboardInterrupt
-        return real_append(path, data, depth, chosen, **kwargs)
-
-    monkeypatch.setattr(sampling, "_append_depth", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        backward_sample(pipeline["expert"], str(out), config, progress=False)
-    monkeypatch.setattr(sampling, "_append_depth", real_append)
-    calls = _count_depths(monkeypatch)
-    backward_sample(pipeline["expert"], str(out), config, progress=False)  # resumes the face phase
+    calls = _interrupt_then_resume(  # interrupted in the face phase's second depth, then resumed
+        pipeline["expert"], out, config, monkeypatch, lambda path, depth, chosen, kw: kw.get("group") == "face_2")
     assert calls == ["face_2", "face_3"]
     with h5py.File(out, "r") as f, h5py.File(pipeline["tree"], "r") as ref:
         n = len(ref["depth"])
