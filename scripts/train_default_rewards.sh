@@ -11,7 +11,9 @@
 # EPISODES (held-out examination seeds) override the scale; IMAGE_BASELINE=0 skips
 # the image-only baseline (scripts/train_stock_rewards.sh, whose tasks have no F/T anyway).
 # The expert descends DESCENT metres per step inside the hole: 0.002 on PegInHole-v1 (the shipped
-# checkpoint since stop 14, docs/drem.md), the expert's default 0.005 elsewhere.
+# checkpoint since stop 14, docs/drem.md), the expert's default 0.005 elsewhere. FACE depths of the
+# face phase (lineages sliding the part over the socket's face; not in the paper, docs/drem.md):
+# 8 on USBInsertion-v1 (the shipped checkpoints since stop 16), 0 elsewhere.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 BIN=.venv/bin/drem-maniskill
@@ -26,8 +28,9 @@ tasks=("$@")
 for task in "${tasks[@]}"; do
   out=outputs/default/$task
   case $task in PegInHole-v1) descent=${DESCENT:-0.002} ;; *) descent=${DESCENT:-0.005} ;; esac
+  case $task in USBInsertion-v1) face=${FACE:-8} ;; *) face=${FACE:-0} ;; esac
   [ -f "$out/expert/expert.h5" ] || $BIN record-expert --task "$task" --seed 1000 --episodes 1 --out "$out/expert" --descent-step "$descent"
-  [ -f "$out/tree.h5" ] || $BIN sample --expert "$out/expert/expert.h5" --out "$out/tree.h5" --num-children "$M" --expert-step-scale "$STEP_SCALE" --outward-depth "$OUTWARD"
+  [ -f "$out/tree.h5" ] || $BIN sample --expert "$out/expert/expert.h5" --out "$out/tree.h5" --num-children "$M" --expert-step-scale "$STEP_SCALE" --outward-depth "$OUTWARD" --face-depth "$face"
   $BIN train-reward --dataset "$out/tree.h5" --out "$out/reward" --preset quick --iterations "$ITERS" --threads 1
   # Quality on held-out seeds 0-19 (the expert demo used seed 1000).
   $BIN examine --task "$task" --checkpoint "$out/reward/drem.pt" --out "$out/examination" --episodes "$EPISODES"
