@@ -393,6 +393,10 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             f"{expert_path} recorded cameras {expert.camera_map}, but {expert.env_id} samples {sampler.adapter.camera_map}; "
             "record the expert with the same env and sensor configs"
         )
+    if config.face_depth > 0 and sampler.adapter.tip_in_socket() is None:
+        sampler.close()
+        raise ValueError(f"the face phase (--face-depth) needs one of our insertion tasks, which know where the part's "
+                         f"tip is on the socket; {expert.env_id} does not: sample it with --face-depth 0")
     # The measure compares with the expert's end-effector states, read from its env states
     # (not its observations), so any demo with env_states works.
     expert_ee = sampler.expert_ee_states(expert.states)
@@ -517,6 +521,7 @@ def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: Sample
         bar.update(1)
     bar.close()
     return depth, seeds
+
 
 def face_entry_depth(path, start_depth: int) -> int:
     """The first backward depth whose seed's tip is out of the opening (``FACE_ENTRY_HEIGHT``): where the part enters."""
