@@ -498,6 +498,18 @@ def _mark_start_depth(path: Path, depth: int) -> int:
     return depth
 
 
+def _farthest_along(ee: np.ndarray, origin: np.ndarray, directions: np.ndarray,
+                    penalty: Optional[np.ndarray] = None) -> np.ndarray:
+    """Row of each lineage's child that went farthest from ``origin`` along the lineage's direction, less ``penalty``.
+
+    ``ee`` ``[lineages * children, >= 3]`` holds the children lineage by lineage (``_children_of``'s order).
+    """
+    along = np.einsum("lcx,lx->lc", (ee[:, :3] - origin).reshape(len(directions), -1, 3), directions)
+    if penalty is not None:
+        along = along - penalty.reshape(along.shape)
+    return np.arange(len(directions)) * along.shape[1] + along.argmax(1)
+
+
 def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, start_depth: int, depth: int,
                     seeds: list, seed_nodes: list, progress: bool) -> tuple:
     """The outward phase (``SamplerConfig.outward_depth``): one lineage per direction, from the start-region seed."""
@@ -512,9 +524,7 @@ def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: Sample
     while depth < start_depth + config.outward_depth:
         merged = _children_of(sampler, pool, config, seeds, seed_nodes, depth, config.outward_children, config.action_scale,
                               stream=3)
-        along = (merged["ee"][:, :3] - origin).reshape(len(directions), config.outward_children, 3)
-        best = np.einsum("lcx,lx->lc", along, directions).argmax(1)
-        chosen = np.arange(len(directions)) * config.outward_children + best
+        chosen = _farthest_along(merged["ee"], origin, directions)
         depth += 1
         seed_nodes = _append_depth(partial, merged, depth, chosen)
         seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
@@ -566,14 +576,10 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     bar = tqdm(total=config.face_depth, initial=done, desc="face sampling", unit="depth", disable=not progress)
     for k in range(done, config.face_depth):
         merged = _children_of(sampler, pool, config, seeds, nodes, entry + k, config.face_children, scale, stream=4)
-        along = (merged["ee"][:, :3] - origin) @ directions.T  # [n, lineages]
-        turned = _rotation_from(merged["ee"][:, 3:7].astype(np.float64), upright)
-        score = along - config.rotation_weight * turned[:, None]
+        penalty = config.rotation_weight * _rotation_from(merged["ee"][:, 3:7].astype(np.float64), upright)
         # A child that went down into the opening is near the goal, not on the face: never a face seed.
-        score[merged["tip_in_socket"][:, 2] < FACE_SEED_HEIGHT] = -np.inf
-        score = score.reshape(lineages, config.face_children, lineages)
-        best = score[np.arange(lineages), :, np.arange(lineages)].argmax(1)
-        chosen = np.arange(lineages) * config.face_children + best
+        penalty[merged["tip_in_socket"][:, 2] < FACE_SEED_HEIGHT] = np.inf
+        chosen = _farthest_along(merged["ee"], origin, directions, penalty)
         nodes = _append_depth(partial, merged, entry + k + 1, chosen, group=f"face_{k + 1}",
                               counter="face_completed", count=k + 1)
         seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
