@@ -18,6 +18,7 @@ reward_mode="none")``, random actions, measured in the same run): issue 13's tar
     .venv/bin/python bench/sac_speed.py --presets state light --rewards drem  # issue 13's two ratios
     .venv/bin/python bench/sac_speed.py --presets light paper --paper-steps 20
     .venv/bin/python bench/sac_speed.py --rewards drem --encoders separate shared   # rl.sac's shared encoder
+    .venv/bin/python bench/sac_speed.py --presets state light --rewards drem --variants preset train_freq=4 net_arch=128+128,batch_size=128
 """
 
 from __future__ import annotations
@@ -68,10 +69,25 @@ def random_step_ms(env, n: int) -> float:
     return 1000 * (time.perf_counter() - t) / n
 
 
+def parse_variant(text: str) -> dict:
+    """``"net_arch=128+128,batch_size=128"`` -> RLConfig overrides (integers; ``+`` joins a tuple); ``preset``: none."""
+    if text == "preset":
+        return {}
+    out = {}
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--variants: {item!r} is not KEY=VALUE (e.g. train_freq=4 or net_arch=128+128)")
+        out[key] = tuple(int(v) for v in value.split("+")) if "+" in value else int(value)
+    return out
+
+
 def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_steps: int, none_ms: float,
-            plain_ms: float, encoder: str = "preset") -> dict:
-    """Time one reward in one preset (``encoder``: the preset's, ``separate`` or ``shared``); one table row."""
+            plain_ms: float, encoder: str = "preset", variant: str = "preset") -> dict:
+    """Time one reward in one preset (``encoder``: the preset's, ``separate`` or ``shared``; ``variant``: RLConfig
+    overrides as ``parse_variant`` reads them, or ``preset``); one table row."""
     overrides = {} if encoder == "preset" else dict(shared_encoder=encoder == "shared")
+    overrides.update(parse_variant(variant))
     config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
                              reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp(), **overrides)
     torch.set_num_threads(config.threads)
@@ -109,6 +125,8 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     per_k = 1000 * total / steps
     return dict(
         preset=preset, reward=reward, encoder="shared" if config.shared_encoder else "separate", task=task, steps=steps,
+        variant=variant, update_ratio=config.gradient_steps / config.train_freq,
+        net_arch="x".join(map(str, config.net_arch)), batch_size=config.batch_size,
         sac_s_per_1k=round(per_k, 1), env_steps_per_min=round(60 * steps / total, 1),
         plain_env_s_per_1k=round(plain_ms, 2), x_env=round(per_k / plain_ms, 2),
         grad_ms=round(1000 * grad_timer.total / steps, 2),
@@ -132,6 +150,9 @@ def main(argv=None) -> int:
     p.add_argument("--env-steps", type=int, default=100, help="random env steps for the step-difference measure")
     p.add_argument("--encoders", nargs="+", default=["preset"], choices=["preset", "separate", "shared"],
                    help="image presets: the preset's extractor layout, SB3's separate ones, or one shared (rl.sac)")
+    p.add_argument("--variants", nargs="+", default=["preset"],
+                   help="RLConfig overrides, one row each: KEY=VALUE[,KEY=VALUE], + joins a tuple "
+                        "(e.g. train_freq=4 net_arch=128+128,batch_size=128); preset: none")
     p.add_argument("--out", default="outputs/bench/sac_speed.json")
     args = p.parse_args(argv)
     import drem_maniskill  # noqa: F401
@@ -159,15 +180,16 @@ def main(argv=None) -> int:
         encoders = ["preset"] if preset == "state" else args.encoders
         for reward in args.rewards:
             for encoder in encoders:
-                try:
-                    row = measure(preset, reward, args.task, steps, args.warmup, args.env_steps, none_ms, plain_ms,
-                                  encoder)
-                except FileNotFoundError as err:  # drem-image without its checkpoint
-                    print(f"{preset} {reward}: skipped: {err}", file=sys.stderr)
-                    continue
-                rows.append(row)
-                print(json.dumps(row), flush=True)
-    head = ("preset", "reward", "encoder", "sac_s_per_1k", "x_env", "grad_ms", "env_share", "reward_s_per_1k", "reward_share",
+                for variant in args.variants:
+                    try:
+                        row = measure(preset, reward, args.task, steps, args.warmup, args.env_steps, none_ms, plain_ms,
+                                      encoder, variant)
+                    except FileNotFoundError as err:  # drem-image without its checkpoint
+                        print(f"{preset} {reward}: skipped: {err}", file=sys.stderr)
+                        continue
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
+    head = ("preset", "reward", "encoder", "net_arch", "batch_size", "update_ratio", "sac_s_per_1k", "x_env", "grad_ms", "env_share", "reward_s_per_1k", "reward_share",
             "step_ms", "step_ms_none", "step_diff_share")
     print("\n| " + " | ".join(head) + " |\n|" + " --- |" * len(head))
     for r in rows:

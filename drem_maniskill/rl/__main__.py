@@ -27,7 +27,7 @@ def _cmd_train_policy(args) -> None:
                                        reward_checkpoint=args.reward_checkpoint,
                                        terminate_on_success=args.terminate_on_success, obs_norm=args.obs_norm,
                                        action_scale=args.action_scale, gamma=args.gamma,
-                                       gradient_steps=args.gradient_steps, drem_form=args.drem_form).items() if v is not None}
+                                       gradient_steps=args.gradient_steps, train_freq=args.train_freq, net_arch=args.net_arch, train_bf16=args.bf16, drem_form=args.drem_form).items() if v is not None}
     config = RLConfig.preset(args.preset, task=args.task, reward=args.reward, algo=args.algo, seed=args.seed, **overrides)
     print(f"policy config: {json.dumps(config.to_dict())}")
     result = train_policy(config)
@@ -61,14 +61,19 @@ def add_subcommands(sub) -> None:
     p.add_argument("--eval-episodes", type=int, help="held-out seeds per evaluation (from 10000)")
     p.add_argument("--reward-checkpoint", help="drem rewards: this DREM checkpoint instead of the shipped rewards/<task>/drem.pt")
     p.add_argument("--terminate-on-success", action=argparse.BooleanOptionalAction, default=None,
-                   help="end a training episode at its first success (default: the preset's; on for state, else off: episodes run to the time limit)")
+                   help="end a training episode at its first success (default: the preset's; on for state and light, off for paper: episodes run to the time limit)")
     p.add_argument("--drem-form", choices=list(DREM_FORMS),
                    help="drem rewards: paper pays R, shifted R - 1 (never positive) (default: shifted where episodes end at success, else paper)")
     p.add_argument("--obs-norm", nargs="*", choices=["state", "ft"],
                    help="normalise these policy inputs by running statistics (default: the preset's; none: --obs-norm)")
-    p.add_argument("--action-scale", type=float, help="the policy's full range as a fraction of the controller's (default: the preset's; state 0.5, else 1)")
+    p.add_argument("--action-scale", type=float, help="the policy's full range as a fraction of the controller's (default: the preset's; state and light 0.5, paper 1)")
     p.add_argument("--gamma", type=float, help="discount (default: the preset's, 0.95)")
-    p.add_argument("--gradient-steps", type=int, help="SAC gradient steps per env step (default: 1)")
+    p.add_argument("--gradient-steps", type=int, help="SAC gradient steps per --train-freq env steps (default: 1)")
+    p.add_argument("--train-freq", type=int,
+                   help="env steps between SAC updates; the update ratio is gradient-steps / train-freq (default: the preset's)")
+    p.add_argument("--net-arch", type=int, nargs="+", help="hidden layer widths of actor and critics (default: the preset's)")
+    p.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None,
+                   help="SAC's gradient step under bfloat16 autocast (default: the preset's; see docs/rl.md, Speed)")
     p.add_argument("--learning-starts", type=int)
     p.add_argument("--batch-size", type=int)
     p.add_argument("--num-envs", type=int, help="parallel envs (GPU sim)")

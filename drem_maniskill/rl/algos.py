@@ -33,7 +33,7 @@ def policy_kwargs(config) -> dict:
 
 def build_sac(config, venv) -> SAC:
     """A fresh SAC (``rl.sac``: SB3's, shared-encoder step optional) with our extractor, as ``config`` says."""
-    return SAC(
+    model = SAC(
         "SharedEncoderPolicy" if config.shared_encoder else "MultiInputPolicy", venv, learning_rate=config.learning_rate,
         # No more transitions than steps: SB3 allocates (and pickles) the whole buffer.
         buffer_size=min(config.buffer_size, config.steps), batch_size=config.batch_size,
@@ -41,6 +41,8 @@ def build_sac(config, venv) -> SAC:
         gamma=config.gamma, tau=config.tau, ent_coef=config.ent_coef, seed=config.seed, device=config.device,
         policy_kwargs=policy_kwargs(config),
     )
+    model.train_bf16 = config.train_bf16
+    return model
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,11 @@ def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
         label += ", norm " + "+".join(cfg["obs_norm"])
     if cfg.get("action_scale", 1.0) != 1.0:
         label += f", actions x{cfg['action_scale']:g}"
+    ratio = cfg.get("gradient_steps", 1) / cfg.get("train_freq", 1)
+    if ratio != 1:
+        label += f", updates x{ratio:g}"  # gradient steps per env step
+    if cfg.get("train_bf16"):
+        label += ", bf16"
     return label
 
 

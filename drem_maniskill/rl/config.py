@@ -51,10 +51,16 @@ class RLConfig:
     buffer_size: int = 50_000
     batch_size: int = 64  # light: a 64-batch gradient step is ~130 ms here, 128 is ~200 ms
     learning_starts: int = 1_000
+    # One gradient step per train_freq env steps (SB3's train_freq, gradient_steps). The light preset takes 4:
+    # SAC's gradient step is compute on one core, and a quarter of them brings an image run within 3x of the
+    # env's own stepping; the state preset keeps 1, as 4 costs it learning (docs/rl.md, "Speed").
     train_freq: int = 1
     gradient_steps: int = 1
     gamma: float = 0.95  # 50-step episodes: an effective horizon of ~20 steps
     tau: float = 0.005
+    # SAC's gradient step under bfloat16 autocast (rl.sac.SAC.train_bf16): faster on CPUs with AVX512-BF16;
+    # measured before a preset uses it (docs/rl.md, "Speed").
+    train_bf16: bool = False
     ent_coef: str = "auto"
     terminate_on_success: bool = False  # end a training episode at its first success (a terminal state)
 
@@ -63,7 +69,7 @@ class RLConfig:
     sim_backend: str = "cpu"
     env_kwargs: dict = field(default_factory=dict)
     device: str = "auto"  # torch device of SAC; "auto": cuda when there is one
-    threads: int = 2  # torch CPU threads
+    threads: int = 1  # torch CPU threads: one is faster than two here, for the gradient step and the run (docs/rl.md, "Speed")
 
     # --- evaluation and checkpoints
     eval_every: int = 2_000
@@ -95,6 +101,10 @@ class RLConfig:
                 terminate_on_success=True, obs_norm=("state", "ft"), action_scale=0.5,
                 shared_encoder=False,  # no camera to share; the comparison's runs were made with SB3's layout
             )
+        elif name == "light":
+            # Images on this CPU: the state preset's measured learnability settings (episodes end at success,
+            # normalised vectors, half the action range) and a quarter of the updates; its own inputs.
+            base.update(terminate_on_success=True, obs_norm=("state", "ft"), action_scale=0.5, train_freq=4)
         elif name == "paper":
             # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
             # a policy CNN like the reward encoder's (6 stride-2 layers at 128 px); 150k steps.
@@ -110,8 +120,9 @@ class RLConfig:
 
     def __post_init__(self):
         if not isinstance(self.preset, str):
-            # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light".
+            # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light" (without the preset's overrides).
             self.preset = "light"
+        self.train_bf16 = bool(self.train_bf16)
         for key in ("cameras", "cnn_channels", "net_arch", "obs_norm"):
             setattr(self, key, tuple(getattr(self, key)))
         if set(self.obs_norm) - {"state", "ft"}:

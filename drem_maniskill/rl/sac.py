@@ -57,10 +57,20 @@ class SAC(stable_baselines3.SAC):
 
     policy_aliases = {**stable_baselines3.SAC.policy_aliases, "SharedEncoderPolicy": SharedEncoderPolicy}
 
+    # Matrix products of the gradient step in bfloat16 (``RLConfig.train_bf16``; parameters, Adam and the
+    # rollouts stay float32). Saved with the model; models saved before the attribute existed train in float32.
+    train_bf16: bool = False
+
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        """SB3's ``SAC.train``, or the shared-encoder step when the policy is a ``SharedEncoderPolicy``."""
-        if not isinstance(self.policy, SharedEncoderPolicy):
-            return super().train(gradient_steps, batch_size)
+        """SB3's ``SAC.train``, or the shared-encoder step when the policy is a ``SharedEncoderPolicy``;
+        under bfloat16 autocast where ``train_bf16`` is set."""
+        with th.autocast(device_type=self.device.type, dtype=th.bfloat16, enabled=bool(self.train_bf16)):
+            if not isinstance(self.policy, SharedEncoderPolicy):
+                return super().train(gradient_steps, batch_size)
+            return self._train_shared(gradient_steps, batch_size)
+
+    def _train_shared(self, gradient_steps: int, batch_size: int) -> None:
+        """The shared-encoder gradient steps (module docstring)."""
         if self.use_sde:
             raise ValueError("the shared-encoder SAC step does not support gSDE (use_sde=True)")
         self.policy.set_training_mode(True)

@@ -108,7 +108,7 @@ def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mi
     # Unset, the form follows termination: episodes that end at success get the shifted one.
     assert RLConfig.preset("state", reward="drem").drem_form_used == "shifted"
     assert RLConfig.preset("state", reward="drem", terminate_on_success=False).drem_form_used == "paper"
-    assert RLConfig.preset("light", reward="drem").drem_form_used == "paper"
+    assert RLConfig.preset("paper", reward="drem").drem_form_used == "paper"
     with pytest.raises(ValueError, match="unknown drem_form 'negative'.*'paper', 'shifted'"):
         RLConfig.preset("state", drem_form="negative")
     with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):

@@ -130,3 +130,36 @@ def test_each_drem_reward_names_the_checkpoint_it_reads():
     assert reward_checkpoint("drem-image", "USBInsertion-v1").parent.name == "USBInsertion-v1"
     assert str(reward_checkpoint("drem", "PegInHole-v1", "x/my.pt")) == "x/my.pt"
     assert reward_checkpoint("vice", "PegInHole-v1") is None and reward_checkpoint("sparse", "PegInHole-v1") is None
+
+
+@pytest.mark.slow
+def test_light_preset_updates_every_fourth_step_and_bf16_runs_the_gradient_step_in_bfloat16(tmp_path):
+    """The speed settings of docs/rl.md: SB3 updates every ``train_freq`` steps (``--train-freq 1``: every step);
+    ``train_bf16`` computes the step's layers in bfloat16 while the parameters stay float32."""
+    import torch
+
+    from drem_maniskill.rl.algos import algo_spec
+    from drem_maniskill.rl.run_env import make_env
+    from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv
+    from drem_maniskill.utils.episodes import max_episode_steps
+
+    updates, dtypes = {}, {}
+    for name, overrides in dict(preset={}, every_step=dict(train_freq=1, train_bf16=True)).items():
+        config = RLConfig.preset("light", task="PegInHole-v1", reward="engineered", steps=48, learning_starts=16,
+                                 batch_size=8, threads=1, out=str(tmp_path / name), **overrides)
+        env, _ = make_env(config)
+        venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task))
+        try:
+            model = algo_spec(config.algo).build(config, venv)
+            seen = set()
+            layer = model.critic.q_networks[0][0]
+            hook = layer.register_forward_hook(lambda m, i, out: seen.add(out.dtype) if torch.is_grad_enabled() else None)
+            model.learn(total_timesteps=48)
+            hook.remove()
+            updates[name], dtypes[name] = model._n_updates, seen
+            assert layer.weight.dtype == torch.float32
+        finally:
+            venv.close()
+    # 32 env steps after learning starts: 8 updates at the preset's ratio, 32 at one per step.
+    assert updates == dict(preset=8, every_step=32)
+    assert dtypes == dict(preset={torch.float32}, every_step={torch.bfloat16})
