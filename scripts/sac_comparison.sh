@@ -5,8 +5,9 @@
 #   bash scripts/sac_comparison.sh [TASK] [STEPS] [SEEDS] [REWARDS...]
 #   defaults: PegInHole-v1 1500 "0 1 2" sparse engineered vice drem-image drem
 #   env: OUT (outputs/rl), PARALLEL (2), PRESET (light), and EVAL_EVERY, EVAL_EPISODES,
-#   LEARNING_STARTS: 500, 5, 250 with the light preset, the preset's own otherwise
+#   LEARNING_STARTS (default: the preset's own)
 #   issue 13's comparison: PRESET=state bash scripts/sac_comparison.sh PegInHole-v1 50000
+#   issue 13's light runs: bash scripts/sac_comparison.sh PegInHole-v1 40000 "0 1 2" sparse engineered drem
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 TASK=${1:-PegInHole-v1}
@@ -19,9 +20,6 @@ BIN=.venv/bin/drem-maniskill
 OUT=${OUT:-outputs/rl}
 PRESET=${PRESET:-light}
 export OMP_WAIT_POLICY=PASSIVE
-if [ "$PRESET" = light ]; then
-  EVAL_EVERY=${EVAL_EVERY:-500} EVAL_EPISODES=${EVAL_EPISODES:-5} LEARNING_STARTS=${LEARNING_STARTS:-250}
-fi
 OPTS="--preset $PRESET${EVAL_EVERY:+ --eval-every $EVAL_EVERY}${EVAL_EPISODES:+ --eval-episodes $EVAL_EPISODES}"
 OPTS="$OPTS${LEARNING_STARTS:+ --learning-starts $LEARNING_STARTS}"
 jobs=()
