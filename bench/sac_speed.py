@@ -189,8 +189,8 @@ def main(argv=None) -> int:
                         continue
                     rows.append(row)
                     print(json.dumps(row), flush=True)
-    head = ("preset", "reward", "encoder", "net_arch", "batch_size", "update_ratio", "sac_s_per_1k", "x_env", "grad_ms", "env_share", "reward_s_per_1k", "reward_share",
-            "step_ms", "step_ms_none", "step_diff_share")
+    head = ("preset", "reward", "variant", "encoder", "net_arch", "batch_size", "update_ratio", "sac_s_per_1k", "x_env",
+            "grad_ms", "env_share", "reward_s_per_1k", "reward_share", "step_ms", "step_ms_none", "step_diff_share")
     print("\n| " + " | ".join(head) + " |\n|" + " --- |" * len(head))
     for r in rows:
         print("| " + " | ".join(str(r[k]) for k in head) + " |")
