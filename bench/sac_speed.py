@@ -1,8 +1,8 @@
 """SAC wall-clock per 1,000 env steps for each reward, the reward's share of it, and its ratio to the env alone.
 
 For each preset and reward: build the run's env and SAC exactly as ``train-policy`` does, take
-``--warmup`` random steps (``learning_starts``), then time ``--steps`` SAC steps (one gradient step
-per env step). The reward's cost is measured two ways, printed side by side:
+``--warmup`` random steps (``learning_starts``), then time ``--steps`` SAC steps (at the config's update
+ratio: ``train_freq``, ``gradient_steps``). The reward's cost is measured two ways, printed side by side:
 
 * in-step timer: the time inside the env's ``get_reward`` (VICE: inside its wrapper, around the
   inner env step), plus VICE's classifier updates amortised over ``update_every`` steps;
