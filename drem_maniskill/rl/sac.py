@@ -64,7 +64,7 @@ class SAC(stable_baselines3.SAC):
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SB3's ``SAC.train``, or the shared-encoder step when the policy is a ``SharedEncoderPolicy``;
         under bfloat16 autocast where ``train_bf16`` is set."""
-        with th.autocast(device_type=self.device.type, dtype=th.bfloat16, enabled=bool(self.train_bf16)):
+        with th.autocast(device_type=self.device.type, dtype=th.bfloat16, enabled=self.train_bf16):
             if not isinstance(self.policy, SharedEncoderPolicy):
                 return super().train(gradient_steps, batch_size)
             return self._train_shared(gradient_steps, batch_size)
