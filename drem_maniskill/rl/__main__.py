@@ -27,7 +27,7 @@ def _cmd_train_policy(args) -> None:
                                        reward_checkpoint=args.reward_checkpoint,
                                        terminate_on_success=args.terminate_on_success, obs_norm=args.obs_norm,
                                        action_scale=args.action_scale, gamma=args.gamma,
-                                       gradient_steps=args.gradient_steps, train_freq=args.train_freq, net_arch=args.net_arch, train_bf16=args.bf16, drem_form=args.drem_form).items() if v is not None}
+                                       gradient_steps=args.gradient_steps, train_freq=args.train_freq, net_arch=args.net_arch, train_bf16=args.bf16, overlap_env=args.overlap_env, drem_form=args.drem_form).items() if v is not None}
     config = RLConfig.preset(args.preset, task=args.task, reward=args.reward, algo=args.algo, seed=args.seed, **overrides)
     print(f"policy config: {json.dumps(config.to_dict())}")
     result = train_policy(config)
@@ -74,6 +74,9 @@ def add_subcommands(sub) -> None:
     p.add_argument("--net-arch", type=int, nargs="+", help="hidden layer widths of actor and critics (default: the preset's)")
     p.add_argument("--bf16", action=argparse.BooleanOptionalAction, default=None,
                    help="SAC's gradient step under bfloat16 autocast (default: the preset's; see docs/rl.md, Speed)")
+    p.add_argument("--overlap-env", action=argparse.BooleanOptionalAction, default=None,
+                   help="step the env in a child process while SAC's gradient step runs here (default: the preset's; "
+                        "not with vice; docs/rl.md, Speed)")
     p.add_argument("--learning-starts", type=int)
     p.add_argument("--batch-size", type=int)
     p.add_argument("--num-envs", type=int, help="parallel envs (GPU sim)")

@@ -72,6 +72,8 @@ def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
         label += f", updates x{ratio:g}"  # gradient steps per env step
     if cfg.get("train_bf16"):
         label += ", bf16"
+    if cfg.get("overlap_env") and not (cfg["reward"] in REWARDS and REWARDS[cfg["reward"]].learner is not None):
+        label += ", overlapped"  # each action from the policy one update older
     return label
 
 

@@ -10,10 +10,13 @@ and backpropagates once. The target critic keeps SB3's Polyak-averaged Q-network
 online encoder's features, as ``sac_rgbd.py`` does.
 
 ``SAC`` is SB3's class where the policy is SB3's own, so models saved before this module load and
-train as they did.
+train as they did. ``SAC.train_while_env_steps`` overlaps the gradient step with the env step of a
+``rl.vec_env.SubprocDictVecEnv`` (``RLConfig.overlap_env``).
 """
 
 from __future__ import annotations
+
+from typing import Optional
 
 import numpy as np
 import stable_baselines3
@@ -61,9 +64,47 @@ class SAC(stable_baselines3.SAC):
     # rollouts stay float32). Saved with the model; models saved before the attribute existed train in float32.
     train_bf16: bool = False
 
+    # Gradient steps waiting for the next env step (``train_while_env_steps``); None: SB3's order.
+    _deferred: Optional[list] = None
+
+    def _excluded_save_params(self) -> list[str]:
+        # A loaded model defers only once train_while_env_steps hooks it to an env again.
+        return [*super()._excluded_save_params(), "_deferred"]
+
+    def train_while_env_steps(self, venv) -> None:
+        """Run each gradient step while ``venv`` (a ``SubprocDictVecEnv``) takes the next env step in its child process.
+
+        SB3 trains after storing a transition and before choosing the next action; here that
+        ``train`` call is kept and made inside the next ``step_wait``, after the action has been sent.
+        The updates, their number and their batches (sampled from every stored transition) are SB3's;
+        the one difference is that each action comes from the policy one update older. On two cores
+        the step then costs about max(env step, gradient step) instead of their sum.
+        """
+        self._deferred = []
+        venv.while_stepping = self._run_deferred
+
+    def _run_deferred(self) -> None:
+        pending, self._deferred = self._deferred, None  # train() below runs instead of deferring
+        try:
+            for gradient_steps, batch_size in pending:
+                self.train(gradient_steps, batch_size)
+        finally:
+            self._deferred = []
+
+    def learn(self, *args, **kwargs):
+        """SB3's ``learn``; with deferred gradient steps, the last one is made before it returns, as SB3 makes it."""
+        result = super().learn(*args, **kwargs)
+        if self._deferred:
+            self._run_deferred()
+        return result
+
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SB3's ``SAC.train``, or the shared-encoder step when the policy is a ``SharedEncoderPolicy``;
-        under bfloat16 autocast where ``train_bf16`` is set."""
+        under bfloat16 autocast where ``train_bf16`` is set; deferred to the next env step after
+        ``train_while_env_steps``."""
+        if self._deferred is not None:
+            self._deferred.append((gradient_steps, batch_size))
+            return
         with th.autocast(device_type=self.device.type, dtype=th.bfloat16, enabled=self.train_bf16):
             if not isinstance(self.policy, SharedEncoderPolicy):
                 return super().train(gradient_steps, batch_size)

@@ -34,7 +34,7 @@ from drem_maniskill.rl.algos import algo_spec
 from drem_maniskill.rl.config import RLConfig
 from drem_maniskill.rl.rewards import reward_checkpoint, reward_spec
 from drem_maniskill.rl.run_env import make_env, make_eval_env
-from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv
+from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv, SubprocDictVecEnv
 from drem_maniskill.utils.episodes import max_episode_steps
 
 EVAL_COLUMNS = ("steps", "success_rate", "mean_return", "wall_time")
@@ -260,9 +260,16 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
 
     learned_file = ckpt / f"{config.reward}.pt" if ckpt else None
     learned_state = torch.load(learned_file, weights_only=True) if learned_file and learned_file.exists() else None
-    env, learned = make_env(config, learned_state=learned_state)
-    eval_env = make_eval_env(config, learned)
-    venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success)
+    if config.overlap_env_used:
+        venv, learned = SubprocDictVecEnv(config), None
+    else:
+        env, learned = make_env(config, learned_state=learned_state)
+        venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success)
+    try:
+        eval_env = make_eval_env(config, learned)
+    except BaseException:
+        venv.close()
+        raise
     try:
         if ckpt is not None:
             model = algo.load(ckpt, venv, config.device)
@@ -271,6 +278,8 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
             venv.seed(resume_seed(config.seed, model.num_timesteps))
         else:
             model = algo.build(config, venv)
+        if isinstance(venv, SubprocDictVecEnv):
+            model.train_while_env_steps(venv)
         start = model.num_timesteps
         model.set_logger(Logger(None, [make_output_format("csv", str(run_dir / "sb3" / f"from{start}")),
                                        make_output_format("tensorboard", str(run_dir / "tb"))]))

@@ -1,9 +1,12 @@
-"""An SB3 ``VecEnv`` over one batched ManiSkill env with dict observations."""
+"""An SB3 ``VecEnv`` over one batched ManiSkill env with dict observations, in this process or in a child process."""
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import signal
 import time
-from typing import Any
+import traceback
+from typing import Any, Callable, Optional
 
 import gymnasium as gym
 import numpy as np
@@ -112,4 +115,170 @@ class ManiSkillDictVecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class, indices=None):
         """Not tracked: SB3 only asks about its Monitor, which this adapter replaces."""
+        return [False] * self.num_envs
+
+
+# ---------------------------------------------------------------------------- the env in a child process
+def _child(remote, parent_remote, config) -> None:
+    """The child process of ``SubprocDictVecEnv``: build the run's env, then answer commands until ``close``."""
+    parent_remote.close()
+    # Ctrl-C reaches the whole process group: the parent stops the run and closes this process.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        torch.set_num_threads(int(config.threads))
+        from drem_maniskill.rl.run_env import make_env
+        from drem_maniskill.utils.episodes import max_episode_steps
+
+        env, _ = make_env(config)
+        venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success)
+        remote.send(("ok", (venv.num_envs, venv.observation_space, venv.action_space)))
+    except BaseException as err:  # the parent re-raises it: a missing checkpoint reads the same as in-process
+        _send_error(remote, err)
+        return
+    while True:
+        try:
+            cmd, data = remote.recv()
+        except EOFError:  # the parent is gone
+            break
+        try:
+            if cmd == "step":
+                venv.step_async(data)
+                out = venv.step_wait()
+            elif cmd == "reset":
+                out = venv.reset()
+            elif cmd == "seed":
+                out = venv.seed(data)
+            elif cmd == "getattr":
+                out = getattr(venv, data)
+            elif cmd == "call":
+                fn, args = data
+                out = fn(venv, *args)
+            elif cmd == "close":
+                venv.close()
+                remote.send(("ok", None))
+                break
+            else:
+                raise ValueError(f"unknown command {cmd!r}")
+            remote.send(("ok", out))
+        except BaseException as err:
+            _send_error(remote, err)
+    remote.close()
+
+
+def _send_error(remote, err: BaseException) -> None:
+    tb = traceback.format_exc()
+    try:
+        remote.send(("error", (err, tb)))
+    except Exception:  # an exception that does not pickle: its traceback still does
+        remote.send(("error", (None, tb)))
+
+
+class SubprocDictVecEnv(VecEnv):
+    """The run's ``ManiSkillDictVecEnv`` in a child process, so that SAC's gradient step and the env step overlap.
+
+    ``step_async`` sends the actions and returns; ``step_wait`` first calls ``while_stepping`` (the
+    model's deferred gradient step, ``rl.sac.SAC.train_while_env_steps``) here, then collects the
+    child's step. On two cores the run then costs about max(env step, gradient step) per env step
+    instead of their sum (docs/rl.md, "Speed"). SB3's own ``SubprocVecEnv`` runs one gym env per
+    process and resets them itself; here one batched ManiSkill env runs in one process, with the
+    episode ends of ``ManiSkillDictVecEnv``. The child is started with ``spawn``: nothing of this
+    process's simulator, renderer or torch threads is inherited. A learned reward (VICE-RAQ) trains on
+    the run's states in this process, so its runs do not use this class (``RLConfig.overlap_env_used``).
+    """
+
+    def __init__(self, config, start_method: str = "spawn"):
+        ctx = mp.get_context(start_method)
+        self._remote, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_child, args=(child, self._remote, config), daemon=True)
+        self._proc.start()
+        child.close()
+        self._closed = False
+        num_envs, obs_space, act_space = self._recv()
+        super().__init__(num_envs, obs_space, act_space)
+        self.while_stepping: Optional[Callable[[], None]] = None
+
+    def _dead(self) -> RuntimeError:
+        self._proc.join(timeout=5)
+        return RuntimeError(f"the env's child process ended without an answer (exit code {self._proc.exitcode}); "
+                            "its error is above, or run with overlap_env=False (--no-overlap-env) to see it here")
+
+    def _send(self, message) -> None:
+        try:
+            self._remote.send(message)
+        except (BrokenPipeError, ConnectionResetError):
+            raise self._dead() from None
+
+    def _recv(self):
+        try:
+            status, value = self._remote.recv()
+        except (EOFError, ConnectionResetError):
+            raise self._dead() from None
+        if status == "error":
+            err, tb = value
+            if isinstance(err, BaseException):
+                err.add_note(f"raised in the env's child process:\n{tb}")
+                raise err
+            raise RuntimeError(f"in the env's child process:\n{tb}")
+        return value
+
+    def _call(self, cmd: str, data=None):
+        self._send((cmd, data))
+        return self._recv()
+
+    @property
+    def env_time(self) -> float:
+        """Seconds the child spent inside the simulator and the reward (``ManiSkillDictVecEnv.env_time``)."""
+        return self._call("getattr", "env_time")
+
+    def call(self, fn: Callable, *args):
+        """``fn(child_vec_env, *args)`` run in the child (``fn`` must pickle: a module-level function); its result."""
+        return self._call("call", (fn, args))
+
+    def seed(self, seed=None):
+        """Seed the child's next reset."""
+        return self._call("seed", seed)
+
+    def reset(self):
+        """Reset the child's envs."""
+        return self._call("reset")
+
+    def step_async(self, actions):
+        """Send the actions; the child steps while this process goes on."""
+        self._send(("step", np.asarray(actions)))
+
+    def step_wait(self):
+        """Run ``while_stepping`` here while the child steps, then return the child's step."""
+        if self.while_stepping is not None:
+            self.while_stepping()
+        return self._recv()
+
+    def close(self):
+        """Close the child's env and end the process."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self._proc.is_alive():
+                self._call("close")
+        except (RuntimeError, BrokenPipeError, OSError):
+            pass
+        self._proc.join(timeout=10)
+        if self._proc.is_alive():
+            self._proc.terminate()
+        self._remote.close()
+
+    def get_attr(self, attr_name, indices=None):
+        """An attribute of the child's ``ManiSkillDictVecEnv``, once per sub-env."""
+        return [self._call("getattr", attr_name)] * self.num_envs
+
+    def set_attr(self, attr_name, value, indices=None):
+        """Not supported across the process boundary."""
+        raise NotImplementedError("SubprocDictVecEnv does not set attributes in its child; use call()")
+
+    def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
+        """Not supported across the process boundary (``call`` runs a module-level function there)."""
+        raise NotImplementedError("SubprocDictVecEnv has no env_method; use call() with a module-level function")
+
+    def env_is_wrapped(self, wrapper_class, indices=None):
+        """Not tracked, as in ``ManiSkillDictVecEnv``."""
         return [False] * self.num_envs

@@ -74,7 +74,7 @@ def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
     for reward in ("sparse", "engineered"):
         assert [r["steps"] for r in read_eval_csv(tmp_path / "PegInHole-v1" / reward / "seed0" / "eval.csv")] == [0, 8, 16]
     summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
-    light = ", ends at success, norm state+ft, actions x0.5, updates x0.25"  # the light preset's settings
+    light = ", ends at success, norm state+ft, actions x0.5, overlapped"  # the light preset's settings
     assert {row["reward"] for row in summary["rows"]} == {"sparse" + light, "engineered" + light}
     assert (tmp_path / "comparison-PegInHole-v1" / "comparison.png").stat().st_size > 10_000
 
@@ -86,17 +86,22 @@ def test_runs_that_end_at_success_or_use_another_checkpoint_are_curves_of_their_
     tuned = _fake_run(tmp_path / "k", "PegInHole-v1", "drem", 0, [0.0, 0.1, 0.1])
     trap = _fake_run(tmp_path / "p", "PegInHole-v1", "drem", 0, [0.0, 0.0, 0.0])
     fewer = _fake_run(tmp_path / "f", "PegInHole-v1", "engineered", 0, [0.0, 0.0, 0.2])
+    overlapped = _fake_run(tmp_path / "o", "PegInHole-v1", "engineered", 0, [0.0, 0.0, 0.4])
+    vice = _fake_run(tmp_path / "v", "PegInHole-v1", "vice", 0, [0.0, 0.0, 0.0])
     # An unset form under termination is the shifted one (RLConfig.drem_form_used); the paper's is then named too.
     knobs = dict(drem_form=None, terminate_on_success=True, obs_norm=["state", "ft"], action_scale=0.5)
     for run, extra in ((ended, dict(terminate_on_success=True)), (own, dict(reward_checkpoint="out/reward/drem.pt")),
                        (tuned, knobs), (trap, dict(drem_form="paper", terminate_on_success=True)),
-                       (fewer, dict(train_freq=4, train_bf16=True))):
+                       (fewer, dict(train_freq=4, train_bf16=True)), (overlapped, dict(overlap_env=True)),
+                       (vice, dict(overlap_env=True))):
         cfg = json.loads((run / "config.json").read_text())
         (run / "config.json").write_text(json.dumps({**cfg, **extra}))
-    table = {r["reward"]: r for r in compare_runs([plain, ended, own, tuned, trap, fewer], str(tmp_path / "cmp"))["rows"]}
+    runs = [plain, ended, own, tuned, trap, fewer, overlapped, vice]
+    table = {r["reward"]: r for r in compare_runs(runs, str(tmp_path / "cmp"))["rows"]}
     assert set(table) == {"engineered", "engineered, ends at success", "drem (out/reward/drem.pt)",
                           "drem, shifted, ends at success, norm state+ft, actions x0.5", "drem, paper, ends at success",
-                          "engineered, updates x0.25, bf16"}
+                          "engineered, updates x0.25, bf16", "engineered, overlapped",
+                          "vice"}  # a learned reward's env stays in the run's process: nothing overlapped
     assert table["engineered, ends at success"]["steps_to_50"] == 1000 and table["engineered"]["steps_to_50"] == "not reached"
 
 
