@@ -12,13 +12,16 @@ ratio: ``train_freq``, ``gradient_steps``). The reward's cost is measured two wa
 ``x_env`` is the run's wall time over the plain env's own stepping (``gym.make(task, obs_mode="rgb",
 reward_mode="none")``, random actions, measured in the same run): issue 13's targets are 2x for the
 ``state`` preset with the drem reward and 3x for ``light``. ``grad_ms`` is SAC's gradient step
-(SB3's ``train``), per env step.
+(SB3's ``train``), per env step. A run with ``overlap_env`` (``overlapped``) steps its env in a child
+process while the gradient step runs, as ``train-policy`` does: its reward and step-difference columns
+are measured in the child.
 
     .venv/bin/python bench/sac_speed.py                          # light preset, every reward
     .venv/bin/python bench/sac_speed.py --presets state light --rewards drem  # issue 13's two ratios
     .venv/bin/python bench/sac_speed.py --presets light paper --paper-steps 20
     .venv/bin/python bench/sac_speed.py --rewards drem --encoders separate shared   # rl.sac's shared encoder
     .venv/bin/python bench/sac_speed.py --presets state light --rewards drem --variants preset train_freq=4 net_arch=128+128,batch_size=128
+    .venv/bin/python bench/sac_speed.py --presets state --rewards drem --variants preset overlap_env=0 overlap_env=0,train_bf16=0
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from drem_maniskill.rl.config import RLConfig  # noqa: E402
 from drem_maniskill.rl.algos import algo_spec  # noqa: E402
 from drem_maniskill.rl.rewards import REWARDS  # noqa: E402
 from drem_maniskill.rl.run_env import make_env  # noqa: E402
-from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv  # noqa: E402
+from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv, SubprocDictVecEnv  # noqa: E402
 from drem_maniskill.utils.episodes import max_episode_steps  # noqa: E402
 
 
@@ -69,6 +72,21 @@ def random_step_ms(env, n: int) -> float:
     return 1000 * (time.perf_counter() - t) / n
 
 
+def time_reward(venv, reset: bool = False) -> float:
+    """In an env's child process: time the reward's calls from now (first call) and return their total seconds."""
+    u = venv.base_env
+    if not isinstance(u.get_reward, Timer):
+        u.get_reward = Timer(u.get_reward)
+    if reset:
+        u.get_reward.total = 0.0
+    return u.get_reward.total
+
+
+def child_step_ms(venv, n: int) -> float:
+    """In an env's child process: ``random_step_ms`` of its env."""
+    return random_step_ms(venv._env, n)
+
+
 def parse_variant(text: str) -> dict:
     """``"net_arch=128+128,batch_size=128"`` -> RLConfig overrides (integers; ``+`` joins a tuple); ``preset``: none."""
     if text == "preset":
@@ -91,19 +109,30 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
                              reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp(), **overrides)
     torch.set_num_threads(config.threads)
-    env, vice = make_env(config)
-    u = env.unwrapped
-    if vice is not None:
-        inner, outer = Timer(vice.env.step), Timer(vice.step)
-        vice.env.step, vice.step = inner, outer
-        reward_timer = None
+    overlapped = config.overlap_env_used
+    vice = None
+    if overlapped:
+        # As train-policy: the env in a child process, stepping while the gradient step runs here.
+        venv = SubprocDictVecEnv(config)
+        venv.call(time_reward)
     else:
-        reward_timer = u.get_reward = Timer(u.get_reward)
-    venv = ManiSkillDictVecEnv(env, max_episode_steps(task))
+        env, vice = make_env(config)
+        u = env.unwrapped
+        if vice is not None:
+            inner, outer = Timer(vice.env.step), Timer(vice.step)
+            vice.env.step, vice.step = inner, outer
+            reward_timer = None
+        else:
+            reward_timer = u.get_reward = Timer(u.get_reward)
+        venv = ManiSkillDictVecEnv(env, max_episode_steps(task))
     model = algo_spec(config.algo).build(config, venv)
+    if overlapped:
+        model.train_while_env_steps(venv)
     model.learn(total_timesteps=warmup)  # random actions, no gradient steps yet
     grad_timer = model.train = Timer(model.train)
-    if reward_timer is not None:
+    if overlapped:
+        venv.call(time_reward, True)
+    elif reward_timer is not None:
         reward_timer.total = reward_timer.calls = 0
     else:
         inner.total = outer.total = 0.0
@@ -112,7 +141,10 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     model.learn(total_timesteps=steps, reset_num_timesteps=False)
     total = time.perf_counter() - t
     env_time = venv.env_time - env0
-    reward_time = reward_timer.total if reward_timer is not None else outer.total - inner.total
+    if overlapped:
+        reward_time = venv.call(time_reward)
+    else:
+        reward_time = reward_timer.total if reward_timer is not None else outer.total - inner.total
     vice_update_s = 0.0
     if vice is not None:
         # Classifier updates run every update_every steps (1000): time one and amortise it.
@@ -120,12 +152,13 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
         vice.update()
         vice_update_s = time.perf_counter() - t
         reward_time += vice_update_s * steps / vice.config.update_every
-    step_ms = random_step_ms(env, env_steps)
+    step_ms = venv.call(child_step_ms, env_steps) if overlapped else random_step_ms(env, env_steps)
     venv.close()
     per_k = 1000 * total / steps
     return dict(
         preset=preset, reward=reward, encoder="shared" if config.shared_encoder else "separate", task=task, steps=steps,
-        variant=variant, update_ratio=config.gradient_steps / config.train_freq,
+        variant=variant, update_ratio=config.gradient_steps / config.train_freq, bf16=config.train_bf16,
+        overlapped=overlapped,
         net_arch="x".join(map(str, config.net_arch)), batch_size=config.batch_size,
         sac_s_per_1k=round(per_k, 1), env_steps_per_min=round(60 * steps / total, 1),
         plain_env_s_per_1k=round(plain_ms, 2), x_env=round(per_k / plain_ms, 2),
@@ -189,7 +222,8 @@ def main(argv=None) -> int:
                         continue
                     rows.append(row)
                     print(json.dumps(row), flush=True)
-    head = ("preset", "reward", "variant", "encoder", "net_arch", "batch_size", "update_ratio", "sac_s_per_1k", "x_env",
+    head = ("preset", "reward", "variant", "encoder", "net_arch", "batch_size", "update_ratio", "bf16", "overlapped",
+            "sac_s_per_1k", "x_env",
             "grad_ms", "env_share", "reward_s_per_1k", "reward_share", "step_ms", "step_ms_none", "step_diff_share")
     print("\n| " + " | ".join(head) + " |\n|" + " --- |" * len(head))
     for r in rows:

@@ -54,16 +54,19 @@ class RLConfig:
     buffer_size: int = 50_000
     batch_size: int = 64  # light: a 64-batch gradient step is ~130 ms here, 128 is ~200 ms
     learning_starts: int = 1_000
-    # One gradient step per train_freq env steps (SB3's train_freq, gradient_steps). The light preset takes 4:
-    # SAC's gradient step is compute on one core, and a quarter of them brings an image run within 3x of the
-    # env's own stepping; the state preset keeps 1, as 4 costs it learning (docs/rl.md, "Speed").
+    # One gradient step per train_freq env steps (SB3's train_freq, gradient_steps). Every preset takes 1: a
+    # quarter of the updates reached the speed targets in stop 17 but cost learning (docs/rl.md, "Speed").
     train_freq: int = 1
     gradient_steps: int = 1
     gamma: float = 0.95  # 50-step episodes: an effective horizon of ~20 steps
     tau: float = 0.005
     # SAC's gradient step under bfloat16 autocast (rl.sac.SAC.train_bf16): faster on CPUs with AVX512-BF16;
-    # measured before a preset uses it (docs/rl.md, "Speed").
+    # on in the state preset, whose step is large matrix products (docs/rl.md, "Speed").
     train_bf16: bool = False
+    # The training env in a child process, its step overlapped with the gradient step (rl.vec_env.SubprocDictVecEnv,
+    # rl.sac.SAC.train_while_env_steps): each action comes from the policy one update older. Not with a reward that
+    # learns from the run (VICE-RAQ), which stays in this process (overlap_env_used).
+    overlap_env: bool = False
     ent_coef: str = "auto"
     terminate_on_success: bool = False  # end a training episode at its first success (a terminal state)
 
@@ -101,10 +104,15 @@ class RLConfig:
                 steps=50_000, buffer_size=100_000, batch_size=256, learning_starts=1_000, eval_every=2_500,
                 **LEARNABLE,
                 shared_encoder=False,  # no camera to share; the comparison's runs were made with SB3's layout
+                # Since stop 18: the gradient step in bfloat16, overlapped with the env step in a child process
+                # (2 cores): within 2x of the env's own stepping, learning at the same steps (docs/rl.md, "Speed").
+                # The comparison's 30 runs were made before, in float32 and in one process (labelled so).
+                train_bf16=True, overlap_env=True,
             )
         elif name == "light":
-            # Images on this CPU: the state preset's learnability settings and a quarter of the updates.
-            base.update(**LEARNABLE, train_freq=4)
+            # Images on this CPU: the state preset's learnability settings, the env overlapped with the gradient
+            # step (stop 18; from stop 17 a quarter of the updates took its place, at a cost to learning).
+            base.update(**LEARNABLE, overlap_env=True)
         elif name == "paper":
             # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
             # a policy CNN like the reward encoder's (6 stride-2 layers at 128 px); 150k steps.
@@ -123,6 +131,7 @@ class RLConfig:
             # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light" (without the preset's overrides).
             self.preset = "light"
         self.train_bf16 = bool(self.train_bf16)
+        self.overlap_env = bool(self.overlap_env)
         for key in ("cameras", "cnn_channels", "net_arch", "obs_norm"):
             setattr(self, key, tuple(getattr(self, key)))
         if set(self.obs_norm) - {"state", "ft"}:
@@ -153,6 +162,13 @@ class RLConfig:
         if not is_insertion_task(self.task):
             return False
         return self.reward == "drem" if self.policy_ft is None else bool(self.policy_ft)
+
+    @property
+    def overlap_env_used(self) -> bool:
+        """Whether the run's env steps in a child process (``overlap_env``, unless the reward learns from the run)."""
+        from drem_maniskill.rl.rewards import reward_spec
+
+        return self.overlap_env and reward_spec(self.reward).learner is None
 
     @property
     def drem_form_used(self) -> str:

@@ -127,11 +127,11 @@ def test_both_ways_of_sharing_at_once_are_refused():
 
 def test_the_image_presets_share_the_encoder_and_older_runs_keep_their_layout(tmp_path):
     assert RLConfig.preset("light").shared_encoder and RLConfig.preset("paper").shared_encoder
-    # A plain RLConfig() is the light preset without the learnability and speed settings it took in stop 17.
+    # A plain RLConfig() is the light preset without the learnability and speed settings it took in stops 17-18.
     plain, light = RLConfig().to_dict(), RLConfig.preset("light").to_dict()
     assert RLConfig().preset == "light"
     assert {k: light[k] for k in light if light[k] != plain[k]} == dict(
-        terminate_on_success=True, obs_norm=["state", "ft"], action_scale=0.5, train_freq=4)
+        terminate_on_success=True, obs_norm=["state", "ft"], action_scale=0.5, overlap_env=True)
     assert not RLConfig.preset("state").shared_encoder  # the comparison's runs: SB3's layout
     old = RLConfig.preset("light").to_dict()
     del old["shared_encoder"]

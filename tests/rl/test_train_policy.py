@@ -133,8 +133,8 @@ def test_each_drem_reward_names_the_checkpoint_it_reads():
 
 
 @pytest.mark.slow
-def test_light_preset_updates_every_fourth_step_and_bf16_runs_the_gradient_step_in_bfloat16(tmp_path):
-    """The speed settings of docs/rl.md: SB3 updates every ``train_freq`` steps (``--train-freq 1``: every step);
+def test_train_freq_sets_the_update_ratio_and_bf16_runs_the_gradient_step_in_bfloat16(tmp_path):
+    """The speed settings of docs/rl.md: SB3 updates every ``train_freq`` steps (the presets: every step);
     ``train_bf16`` computes the step's layers in bfloat16 while the parameters stay float32."""
     import torch
 
@@ -144,7 +144,7 @@ def test_light_preset_updates_every_fourth_step_and_bf16_runs_the_gradient_step_
     from drem_maniskill.utils.episodes import max_episode_steps
 
     updates, dtypes = {}, {}
-    for name, overrides in dict(preset={}, every_step=dict(train_freq=1, train_bf16=True)).items():
+    for name, overrides in dict(preset={}, quarter=dict(train_freq=4, train_bf16=True)).items():
         config = RLConfig.preset("light", task="PegInHole-v1", reward="engineered", steps=48, learning_starts=16,
                                  batch_size=8, threads=1, out=str(tmp_path / name), **overrides)
         env, _ = make_env(config)
@@ -160,6 +160,40 @@ def test_light_preset_updates_every_fourth_step_and_bf16_runs_the_gradient_step_
             assert layer.weight.dtype == torch.float32
         finally:
             venv.close()
-    # 32 env steps after learning starts: 8 updates at the preset's ratio, 32 at one per step.
-    assert updates == dict(preset=8, every_step=32)
-    assert dtypes == dict(preset={torch.float32}, every_step={torch.bfloat16})
+    # 32 env steps after learning starts: 32 updates at the preset's one per step, 8 at a quarter.
+    assert updates == dict(preset=32, quarter=8)
+    assert dtypes == dict(preset={torch.float32}, quarter={torch.bfloat16})
+
+
+@pytest.mark.slow
+def test_an_overlapped_run_steps_its_env_in_a_child_process_closes_it_and_resumes(tmp_path):
+    """``overlap_env``: the run's env in a child process (closed when the run stops, interrupted or not), the
+    gradient steps made while it steps; a rerun resumes from the checkpoint. VICE, which learns in this process, stays here."""
+    import multiprocessing
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from drem_maniskill.rl.train_policy import train_policy
+
+    seen = {}
+
+    class Interrupt(BaseCallback):
+        def _on_step(self):
+            seen["children"] = [p.name for p in multiprocessing.active_children()]
+            seen["deferred"] = self.model._deferred
+            if self.num_timesteps >= 40:
+                raise KeyboardInterrupt
+            return True
+
+    config = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", steps=64, learning_starts=16, batch_size=16,
+                             eval_every=32, eval_episodes=2, overlap_env=True, out=str(tmp_path / "run"))
+    assert config.overlap_env_used and not RLConfig.preset("state", reward="vice", overlap_env=True).overlap_env_used
+    with pytest.raises(KeyboardInterrupt):
+        train_policy(config, callbacks=[Interrupt()])
+    assert len(seen["children"]) == 1 and seen["deferred"] is not None
+    assert multiprocessing.active_children() == []
+    assert latest_checkpoint(tmp_path / "run").name == "step_32"
+    result = train_policy(config)
+    assert result["resumed_from"] == 32 and result["steps"] == 64 and result["env_time"] > 0
+    assert [r["steps"] for r in read_eval_csv(tmp_path / "run" / "eval.csv")] == [0, 32, 64]
+    assert multiprocessing.active_children() == []
