@@ -5,8 +5,9 @@
 #   bash scripts/sac_comparison.sh [TASK] [STEPS] [SEEDS] [REWARDS...]
 #   defaults: PegInHole-v1 1500 "0 1 2" sparse engineered vice drem-image drem
 #   env: OUT (outputs/rl), PARALLEL (2), PRESET (light), and EVAL_EVERY, EVAL_EPISODES,
-#   LEARNING_STARTS (default: the preset's own)
+#   LEARNING_STARTS (default: the preset's own), EXTRA (more train-policy options)
 #   issue 13's comparison: PRESET=state bash scripts/sac_comparison.sh PegInHole-v1 50000
+#   (its runs were made before stop 18: EXTRA="--no-bf16 --no-overlap-env" redoes them as they were)
 #   issue 13's light runs: bash scripts/sac_comparison.sh PegInHole-v1 40000 "0 1 2" sparse engineered drem
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -21,7 +22,7 @@ OUT=${OUT:-outputs/rl}
 PRESET=${PRESET:-light}
 export OMP_WAIT_POLICY=PASSIVE
 OPTS="--preset $PRESET${EVAL_EVERY:+ --eval-every $EVAL_EVERY}${EVAL_EPISODES:+ --eval-episodes $EVAL_EPISODES}"
-OPTS="$OPTS${LEARNING_STARTS:+ --learning-starts $LEARNING_STARTS}"
+OPTS="$OPTS${LEARNING_STARTS:+ --learning-starts $LEARNING_STARTS}${EXTRA:+ $EXTRA}"
 jobs=()
 for seed in $SEEDS; do for reward in "${REWARDS[@]}"; do jobs+=("$reward $seed"); done; done
 mkdir -p "$OUT/logs"

@@ -65,7 +65,7 @@ def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    env = dict(os.environ, OUT=str(tmp_path), EVAL_EVERY="8", EVAL_EPISODES="1", LEARNING_STARTS="8",
+    env = dict(os.environ, OUT=str(tmp_path), EVAL_EVERY="8", EVAL_EPISODES="1", LEARNING_STARTS="8", EXTRA="--train-freq 2",
                PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
     proc = subprocess.run(["bash", str(root / "scripts" / "sac_comparison.sh"), "PegInHole-v1", "16", "0", "sparse", "engineered"],
                           env=env, capture_output=True, text=True, timeout=600)
@@ -74,7 +74,8 @@ def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
     for reward in ("sparse", "engineered"):
         assert [r["steps"] for r in read_eval_csv(tmp_path / "PegInHole-v1" / reward / "seed0" / "eval.csv")] == [0, 8, 16]
     summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
-    light = ", ends at success, norm state+ft, actions x0.5, overlapped"  # the light preset's settings
+    # The light preset's settings, and EXTRA's.
+    light = ", ends at success, norm state+ft, actions x0.5, updates x0.5, overlapped"
     assert {row["reward"] for row in summary["rows"]} == {"sparse" + light, "engineered" + light}
     assert (tmp_path / "comparison-PegInHole-v1" / "comparison.png").stat().st_size > 10_000
 
