@@ -52,7 +52,7 @@ class RLConfig:
     # --- SAC (stable-baselines3)
     learning_rate: float = 3e-4
     buffer_size: int = 50_000
-    batch_size: int = 64  # light: a 64-batch gradient step is ~130 ms here, 128 is ~200 ms
+    batch_size: int = 64  # light: 64 small images per batch keep its gradient step about twice the env step here
     learning_starts: int = 1_000
     # One gradient step per train_freq env steps (SB3's train_freq, gradient_steps). Every preset takes 1: a
     # quarter of the updates reached the speed targets in stop 17 but cost learning (docs/rl.md, "Speed").
