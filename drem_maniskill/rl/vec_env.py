@@ -193,7 +193,13 @@ class SubprocDictVecEnv(VecEnv):
         self._proc.start()
         child.close()
         self._closed = False
-        num_envs, obs_space, act_space = self._recv()
+        try:
+            num_envs, obs_space, act_space = self._recv()
+        except BaseException:  # the env could not be built: the child has ended, its error is raised here
+            self._closed = True
+            self._proc.join(timeout=10)
+            self._remote.close()
+            raise
         super().__init__(num_envs, obs_space, act_space)
         self.while_stepping: Optional[Callable[[], None]] = None
 
