@@ -115,6 +115,8 @@ def test_adding_an_algorithm(tmp_path, monkeypatch):
     config = RLConfig.preset("light", task="PegInHole-v1", reward="sparse", algo="td3", steps=24, learning_starts=8,
                              batch_size=8, eval_every=12, eval_episodes=1, threads=1, out=str(tmp_path / "run"),
                              env_kwargs=dict(max_episode_steps=6))
+    # TD3 cannot defer its gradient step into the env's (no train_while_env_steps): its env stays in this process.
+    assert config.overlap_env and not config.overlap_env_used
     result = train_policy(config)
     assert result["steps"] == 24
     ckpt = latest_checkpoint(tmp_path / "run")

@@ -11,7 +11,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from drem_maniskill.rl.config import drem_form_used
+from drem_maniskill.rl.config import drem_form_used, overlap_env_used
 from drem_maniskill.rl.rewards import REWARDS, reward_checkpoint
 from drem_maniskill.rl.train_policy import file_sha256, read_eval_csv
 
@@ -72,7 +72,7 @@ def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
         label += f", updates x{ratio:g}"  # gradient steps per env step
     if cfg.get("train_bf16"):
         label += ", bf16"
-    if cfg.get("overlap_env") and not (cfg["reward"] in REWARDS and REWARDS[cfg["reward"]].learner is not None):
+    if overlap_env_used(bool(cfg.get("overlap_env")), cfg["reward"], cfg.get("algo", "sac")):
         label += ", overlapped"  # each action from the policy one update older
     return label
 

@@ -65,7 +65,7 @@ class RLConfig:
     train_bf16: bool = False
     # The training env in a child process, its step overlapped with the gradient step (rl.vec_env.SubprocDictVecEnv,
     # rl.sac.SAC.train_while_env_steps): each action comes from the policy one update older. Not with a reward that
-    # learns from the run (VICE-RAQ), which stays in this process (overlap_env_used).
+    # learns from the run (VICE-RAQ) or an algorithm that cannot defer its step, which stay in this process (overlap_env_used).
     overlap_env: bool = False
     ent_coef: str = "auto"
     terminate_on_success: bool = False  # end a training episode at its first success (a terminal state)
@@ -165,10 +165,8 @@ class RLConfig:
 
     @property
     def overlap_env_used(self) -> bool:
-        """Whether the run's env steps in a child process (``overlap_env``, unless the reward learns from the run)."""
-        from drem_maniskill.rl.rewards import reward_spec
-
-        return self.overlap_env and reward_spec(self.reward).learner is None
+        """Whether the run's env steps in a child process (``overlap_env_used`` below)."""
+        return overlap_env_used(self.overlap_env, self.reward, self.algo)
 
     @property
     def drem_form_used(self) -> str:
@@ -214,6 +212,20 @@ def drem_form_used(drem_form: Optional[str], terminate_on_success: bool) -> str:
     if drem_form is not None:
         return drem_form
     return "shifted" if terminate_on_success else "paper"
+
+
+def overlap_env_used(overlap_env: bool, reward: str, algo: str = "sac") -> bool:
+    """``overlap_env``, unless the reward learns from the run in this process (VICE-RAQ) or the algorithm cannot
+    defer its gradient step (its class has no ``train_while_env_steps``, as ``rl.sac.SAC`` has); also for config
+    dicts. An unknown reward or algorithm: False."""
+    if not overlap_env:
+        return False
+    from drem_maniskill.rl.algos import ALGOS
+    from drem_maniskill.rl.rewards import REWARDS
+
+    if reward not in REWARDS or algo not in ALGOS:
+        return False
+    return REWARDS[reward].learner is None and hasattr(ALGOS[algo].cls, "train_while_env_steps")
 
 
 def _legacy(d: dict) -> dict:
