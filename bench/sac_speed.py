@@ -41,9 +41,8 @@ import torch  # noqa: E402
 from drem_maniskill.rl.config import RLConfig  # noqa: E402
 from drem_maniskill.rl.algos import algo_spec  # noqa: E402
 from drem_maniskill.rl.rewards import REWARDS  # noqa: E402
-from drem_maniskill.rl.run_env import make_env  # noqa: E402
-from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv, SubprocDictVecEnv  # noqa: E402
-from drem_maniskill.utils.episodes import max_episode_steps  # noqa: E402
+from drem_maniskill.rl.run_env import make_vec_env  # noqa: E402
+from drem_maniskill.rl.vec_env import SubprocDictVecEnv  # noqa: E402
 
 
 class Timer:
@@ -83,7 +82,7 @@ def time_reward(venv, reset: bool = False) -> float:
 
 
 def child_step_ms(venv, n: int) -> float:
-    """In an env's child process: ``random_step_ms`` of its env."""
+    """``random_step_ms`` of a ``ManiSkillDictVecEnv``'s env (in an env's child process, through ``call``)."""
     return random_step_ms(venv._env, n)
 
 
@@ -109,22 +108,18 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
                              reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp(), **overrides)
     torch.set_num_threads(config.threads)
-    overlapped = config.overlap_env_used
-    vice = None
+    venv, vice = make_vec_env(config)  # as train-policy builds it
+    # Overlapped: the env in a child process, stepping while the gradient step runs here.
+    overlapped = isinstance(venv, SubprocDictVecEnv)
     if overlapped:
-        # As train-policy: the env in a child process, stepping while the gradient step runs here.
-        venv = SubprocDictVecEnv(config)
         venv.call(time_reward)
+    elif vice is not None:
+        inner, outer = Timer(vice.env.step), Timer(vice.step)
+        vice.env.step, vice.step = inner, outer
+        reward_timer = None
     else:
-        env, vice = make_env(config)
-        u = env.unwrapped
-        if vice is not None:
-            inner, outer = Timer(vice.env.step), Timer(vice.step)
-            vice.env.step, vice.step = inner, outer
-            reward_timer = None
-        else:
-            reward_timer = u.get_reward = Timer(u.get_reward)
-        venv = ManiSkillDictVecEnv(env, max_episode_steps(task))
+        u = venv.base_env
+        reward_timer = u.get_reward = Timer(u.get_reward)
     model = algo_spec(config.algo).build(config, venv)
     if overlapped:
         model.train_while_env_steps(venv)
@@ -152,7 +147,7 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
         vice.update()
         vice_update_s = time.perf_counter() - t
         reward_time += vice_update_s * steps / vice.config.update_every
-    step_ms = venv.call(child_step_ms, env_steps) if overlapped else random_step_ms(env, env_steps)
+    step_ms = venv.call(child_step_ms, env_steps) if overlapped else child_step_ms(venv, env_steps)
     venv.close()
     per_k = 1000 * total / steps
     return dict(

@@ -10,7 +10,9 @@ from drem_maniskill.envs import check_env_id, is_insertion_task
 from drem_maniskill.experts import ee_control_kwargs
 from drem_maniskill.rl.observation import PolicyObservation, state_parts
 from drem_maniskill.rl.rewards import reward_spec, supported_rewards
+from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv, SubprocDictVecEnv
 from drem_maniskill.utils.cameras import camera_roles, env_cameras
+from drem_maniskill.utils.episodes import max_episode_steps
 
 
 def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eval: bool = False):
@@ -65,3 +67,17 @@ def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eva
 def make_eval_env(config, learned=None) -> gym.Env:
     """The one-env evaluation env of a run (rewarded by ``learned`` where the reward learns)."""
     return make_env(config, learned=learned, for_eval=True)[0]
+
+
+def make_local_vec_env(config, learned_state: Optional[dict] = None):
+    """``(venv, learned_or_None)``: ``make_env``'s training env as SB3's ``ManiSkillDictVecEnv``, in this process."""
+    env, learned = make_env(config, learned_state=learned_state)
+    return ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success), learned
+
+
+def make_vec_env(config, learned_state: Optional[dict] = None):
+    """``(venv, learned_or_None)``: the run's training env for SB3, in a child process (``SubprocDictVecEnv``)
+    where ``config.overlap_env_used``, else ``make_local_vec_env``'s."""
+    if config.overlap_env_used:
+        return SubprocDictVecEnv(config), None
+    return make_local_vec_env(config, learned_state)

@@ -33,8 +33,8 @@ from drem_maniskill.experts import rollout
 from drem_maniskill.rl.algos import algo_spec
 from drem_maniskill.rl.config import RLConfig
 from drem_maniskill.rl.rewards import reward_checkpoint, reward_spec
-from drem_maniskill.rl.run_env import make_env, make_eval_env
-from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv, SubprocDictVecEnv
+from drem_maniskill.rl.run_env import make_eval_env, make_vec_env
+from drem_maniskill.rl.vec_env import SubprocDictVecEnv
 from drem_maniskill.utils.episodes import max_episode_steps
 
 EVAL_COLUMNS = ("steps", "success_rate", "mean_return", "wall_time")
@@ -260,11 +260,7 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
 
     learned_file = ckpt / f"{config.reward}.pt" if ckpt else None
     learned_state = torch.load(learned_file, weights_only=True) if learned_file and learned_file.exists() else None
-    if config.overlap_env_used:
-        venv, learned = SubprocDictVecEnv(config), None
-    else:
-        env, learned = make_env(config, learned_state=learned_state)
-        venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success)
+    venv, learned = make_vec_env(config, learned_state=learned_state)
     try:
         eval_env = make_eval_env(config, learned)
     except BaseException:

@@ -126,11 +126,9 @@ def _child(remote, parent_remote, config) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         torch.set_num_threads(int(config.threads))
-        from drem_maniskill.rl.run_env import make_env
-        from drem_maniskill.utils.episodes import max_episode_steps
+        from drem_maniskill.rl.run_env import make_local_vec_env
 
-        env, _ = make_env(config)
-        venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success)
+        venv, _ = make_local_vec_env(config)
         remote.send(("ok", (venv.num_envs, venv.observation_space, venv.action_space)))
     except BaseException as err:  # the parent re-raises it: a missing checkpoint reads the same as in-process
         _send_error(remote, err)
