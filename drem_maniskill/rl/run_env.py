@@ -79,5 +79,5 @@ def make_vec_env(config, learned_state: Optional[dict] = None):
     """``(venv, learned_or_None)``: the run's training env for SB3, in a child process (``SubprocDictVecEnv``)
     where ``config.overlap_env_used``, else ``make_local_vec_env``'s."""
     if config.overlap_env_used:
-        return SubprocDictVecEnv(config), None
+        return SubprocDictVecEnv(make_local_vec_env, config), None
     return make_local_vec_env(config, learned_state)

@@ -119,16 +119,14 @@ class ManiSkillDictVecEnv(VecEnv):
 
 
 # ---------------------------------------------------------------------------- the env in a child process
-def _child(remote, parent_remote, config) -> None:
+def _child(remote, parent_remote, build, config) -> None:
     """The child process of ``SubprocDictVecEnv``: build the run's env, then answer commands until ``close``."""
     parent_remote.close()
     # Ctrl-C reaches the whole process group: the parent stops the run and closes this process.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         torch.set_num_threads(int(config.threads))
-        from drem_maniskill.rl.run_env import make_local_vec_env
-
-        venv, _ = make_local_vec_env(config)
+        venv, _ = build(config)
         remote.send(("ok", (venv.num_envs, venv.observation_space, venv.action_space)))
     except BaseException as err:  # the parent re-raises it: a missing checkpoint reads the same as in-process
         _send_error(remote, err)
@@ -179,15 +177,16 @@ class SubprocDictVecEnv(VecEnv):
     child's step. On two cores the run then costs about max(env step, gradient step) per env step
     instead of their sum (docs/rl.md, "Speed"). SB3's own ``SubprocVecEnv`` runs one gym env per
     process and resets them itself; here one batched ManiSkill env runs in one process, with the
-    episode ends of ``ManiSkillDictVecEnv``. The child is started with ``spawn``: nothing of this
+    episode ends of ``ManiSkillDictVecEnv``, built there by ``build(config) -> (venv, _)`` (a module-level
+    function: ``rl.run_env.make_local_vec_env``). The child is started with ``spawn``: nothing of this
     process's simulator, renderer or torch threads is inherited. A learned reward (VICE-RAQ) trains on
     the run's states in this process, so its runs do not use this class (``RLConfig.overlap_env_used``).
     """
 
-    def __init__(self, config, start_method: str = "spawn"):
+    def __init__(self, build: Callable, config, start_method: str = "spawn"):
         ctx = mp.get_context(start_method)
         self._remote, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_child, args=(child, self._remote, config), daemon=True)
+        self._proc = ctx.Process(target=_child, args=(child, self._remote, build, config), daemon=True)
         self._proc.start()
         child.close()
         self._closed = False
