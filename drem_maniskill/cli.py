@@ -138,7 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env-kwargs", default="{}",
                    help="JSON of extra gym.make kwargs; ManiSkill's own tasks default to control_mode pd_ee_delta_pose")
     p.add_argument("--descent-step", type=float,
-                   help="our tasks: metres per step the expert descends once 6 mm inside the hole (default 0.005); "
+                   help="our tasks: metres per step the expert descends once 6 mm inside the hole (default 0.005), "
+                        "and in its first 6 mm where smaller than the entry's 0.002; "
                         "smaller gives the progress tree more depths inside it (docs/drem.md)")
     p.set_defaults(func=_cmd_record_expert)
 

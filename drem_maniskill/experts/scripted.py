@@ -118,7 +118,7 @@ class ExpertPolicy(ScriptedPolicy):
 
     It slows down near the opening, as a careful demonstrator does: the last centimetre of the
     approach at ``fine_speed`` and the first ``fine_depth`` of the insertion ``fine_step`` at a
-    time. The backward sampler walks the demo back step by step, so these slow steps are what
+    time (or ``descent_step``, where that is smaller). The backward sampler walks the demo back step by step, so these slow steps are what
     give the progress tree depths that tell hovering above the opening, touching its rim and
     being in it apart (docs/drem.md).
     """
@@ -146,7 +146,8 @@ class ExpertPolicy(ScriptedPolicy):
         # Once aligned above the hole (or already inside it), go down; never back up.
         self.phase = torch.where(aligned | (tip[:, 2] < 0), torch.ones_like(self.phase), self.phase)
         target = torch.zeros_like(tip)
-        step = torch.where(tip[:, 2] > -self.fine_depth, torch.full_like(tip[:, 2], self.fine_step),
+        # The entry is never faster than the descent: a descent_step below fine_step slows the whole insertion.
+        step = torch.where(tip[:, 2] > -self.fine_depth, torch.full_like(tip[:, 2], min(self.fine_step, self.descent_step)),
                            torch.full_like(tip[:, 2], self.descent_step))
         target[:, 2] = torch.where(self.phase == 1, tip[:, 2] - step, torch.full_like(tip[:, 2], self.pre_height))
         action = self.move(target, speed=0.5)

@@ -47,6 +47,20 @@ def test_a_slower_expert_descent_records_more_steps_inside_the_hole(tmp_path):
     assert lengths[0.002] >= lengths[0.005] + 5, lengths
 
 
+def test_a_descent_step_below_the_entry_step_slows_the_entry_too(tmp_path):
+    """Below 2 mm a step, ``descent_step`` also sets the first 6 mm (the entry), so the whole insertion slows."""
+    from drem_maniskill.experts.recording import record_expert
+
+    lengths = {}
+    for step in (0.002, 0.001):
+        rec = record_expert("USBInsertion-v1", str(tmp_path / str(step)), seeds=[1000], obs_mode="state_dict", descent_step=step)
+        assert rec.success == [True]
+        lengths[step] = rec.lengths[0]
+    # 9.6 mm to success: about 5 steps at 2 mm, 10 or more at 1 mm. Had the entry stayed at 2 mm a
+    # step, 1 mm would have added only the 3.6 mm below it (2-3 steps).
+    assert lengths[0.001] >= lengths[0.002] + 6, lengths
+
+
 def test_descent_step_is_refused_where_there_is_no_insertion_expert(tmp_path):
     import pytest
 
