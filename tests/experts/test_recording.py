@@ -6,6 +6,7 @@ import json
 
 import h5py
 import numpy as np
+import pytest
 
 import drem_maniskill  # noqa: F401
 
@@ -34,35 +35,26 @@ def test_record_expert_on_a_stock_task_with_video(tmp_path):
     assert sorted(p.name for p in tmp_path.glob("*.mp4")) == ["0.mp4"]
 
 
-def test_a_slower_expert_descent_records_more_steps_inside_the_hole(tmp_path):
+@pytest.mark.parametrize("task, fast, slow, gain", [
+    # The approach is the same; the peg's last 34 mm take 17 steps at 2 mm instead of 7 at 5 mm.
+    ("PegInHole-v1", 0.005, 0.002, 5),
+    # Below the entry's 2 mm a step the first 6 mm slow down too: USB's 9.6 mm to success take about
+    # 5 steps at 2 mm and 10 or more at 1 mm; had the entry stayed at 2 mm, 1 mm would add 2-3 steps.
+    ("USBInsertion-v1", 0.002, 0.001, 6),
+])
+def test_a_slower_expert_descent_records_more_steps_inside_the_hole(tmp_path, task, fast, slow, gain):
     """``descent_step`` (record-expert --descent-step): the same seed, more steps below the opening, still a success."""
     from drem_maniskill.experts.recording import record_expert
 
     lengths = {}
-    for step in (0.005, 0.002):
-        rec = record_expert("PegInHole-v1", str(tmp_path / str(step)), seeds=[1000], obs_mode="state_dict", descent_step=step)
+    for step in (fast, slow):
+        rec = record_expert(task, str(tmp_path / str(step)), seeds=[1000], obs_mode="state_dict", descent_step=step)
         assert rec.success == [True]
         lengths[step] = rec.lengths[0]
-    # The approach is the same; the last 34 mm take 17 steps at 2 mm instead of 7 at 5 mm.
-    assert lengths[0.002] >= lengths[0.005] + 5, lengths
-
-
-def test_a_descent_step_below_the_entry_step_slows_the_entry_too(tmp_path):
-    """Below 2 mm a step, ``descent_step`` also sets the first 6 mm (the entry), so the whole insertion slows."""
-    from drem_maniskill.experts.recording import record_expert
-
-    lengths = {}
-    for step in (0.002, 0.001):
-        rec = record_expert("USBInsertion-v1", str(tmp_path / str(step)), seeds=[1000], obs_mode="state_dict", descent_step=step)
-        assert rec.success == [True]
-        lengths[step] = rec.lengths[0]
-    # 9.6 mm to success: about 5 steps at 2 mm, 10 or more at 1 mm. Had the entry stayed at 2 mm a
-    # step, 1 mm would have added only the 3.6 mm below it (2-3 steps).
-    assert lengths[0.001] >= lengths[0.002] + 6, lengths
+    assert lengths[slow] >= lengths[fast] + gain, lengths
 
 
 def test_descent_step_is_refused_where_there_is_no_insertion_expert(tmp_path):
-    import pytest
 
     from drem_maniskill.experts.recording import record_expert
 
