@@ -55,7 +55,6 @@ def test_a_slower_expert_descent_records_more_steps_inside_the_hole(tmp_path, ta
 
 
 def test_descent_step_is_refused_where_there_is_no_insertion_expert(tmp_path):
-
     from drem_maniskill.experts.recording import record_expert
 
     with pytest.raises(ValueError, match="descent_step"):
