@@ -118,9 +118,9 @@ class ExpertPolicy(ScriptedPolicy):
 
     It slows down near the opening, as a careful demonstrator does: the last centimetre of the
     approach at ``fine_speed`` and the first ``fine_depth`` of the insertion ``fine_step`` at a
-    time (or ``descent_step``, where that is smaller). The backward sampler walks the demo back step by step, so these slow steps are what
-    give the progress tree depths that tell hovering above the opening, touching its rim and
-    being in it apart (docs/drem.md).
+    time (or ``descent_step``, where that is smaller). The backward sampler walks the demo back
+    step by step, so these slow steps are what give the progress tree depths that tell hovering
+    above the opening, touching its rim and being in it apart (docs/drem.md).
     """
 
     pre_height = 0.006

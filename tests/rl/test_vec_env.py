@@ -103,13 +103,11 @@ def test_the_env_in_a_child_process_steps_like_the_env_in_this_one():
     """``SubprocDictVecEnv`` (``RLConfig.overlap_env``): the same observations, rewards and episode ends for the
     same seed and actions; an error in the child is raised here with its own type; a dead child is named."""
     from drem_maniskill.rl import RLConfig
-    from drem_maniskill.rl.run_env import make_env, make_local_vec_env
+    from drem_maniskill.rl.run_env import make_local_vec_env
     from drem_maniskill.rl.vec_env import SubprocDictVecEnv
-    from drem_maniskill.utils.episodes import max_episode_steps
 
     config = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", overlap_env=True)
-    env, _ = make_env(config)
-    here = ManiSkillDictVecEnv(env, max_episode_steps(config.task), config.terminate_on_success)
+    here, _ = make_local_vec_env(config)
     child = SubprocDictVecEnv(make_local_vec_env, config)
     try:
         assert child.observation_space == here.observation_space and child.action_space == here.action_space
