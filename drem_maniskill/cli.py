@@ -33,7 +33,7 @@ def _cmd_record_expert(args) -> None:
     except json.JSONDecodeError as err:
         raise SystemExit(f"--env-kwargs must be a JSON object, e.g. '{{\"sim_backend\": \"cpu\"}}': {err}")
     result = record_expert(args.task, args.out, seeds=seeds, obs_mode=args.obs_mode, name=args.name, save_video=args.video,
-                           env_kwargs=env_kwargs, descent_step=args.descent_step)
+                           env_kwargs=env_kwargs, descent_step=args.descent_step, descend_from=args.descend_from)
     print(json.dumps({"trajectory": result.h5_path, "metadata": result.json_path, "success_rate": result.success_rate,
                       "lengths": result.lengths}, indent=2))
 
@@ -141,6 +141,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="our tasks: metres per step the expert descends once 6 mm inside the hole (default 0.005), "
                         "and in its first 6 mm where smaller than the entry's 0.002; "
                         "smaller gives the progress tree more depths inside it (docs/drem.md)")
+    p.add_argument("--descend-from", type=float,
+                   help="our tasks: metres above the socket's top face the aligned expert starts its slow descent "
+                        "(default: wherever it aligned, often 2 cm up); above it, it approaches the pre-insertion point "
+                        "6 mm above the opening at its approach speed, so fewer of the demo's steps hover (docs/drem.md)")
     p.set_defaults(func=_cmd_record_expert)
 
     p = sub.add_parser("scripted-success", help="success rate of a scripted policy over many seeds")

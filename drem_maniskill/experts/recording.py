@@ -53,10 +53,12 @@ def record_expert(
     max_steps: Optional[int] = None,
     env_kwargs: Optional[dict] = None,
     descent_step: Optional[float] = None,
+    descend_from: Optional[float] = None,
 ) -> RecordResult:
     """Roll out a scripted policy (a name, or a callable ``obs -> action``) on ``seeds``; save with ``RecordEpisode``.
 
-    ``descent_step``: our tasks' ``expert`` only, metres per step once inside the hole (default 0.005).
+    ``descent_step``: our tasks' ``expert`` only, metres per step once inside the hole (default 0.005);
+    ``descend_from``: its height above the opening where the slow descent starts (``ExpertPolicy``).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -69,12 +71,12 @@ def record_expert(
     )
     first = int(seeds[0]) if len(seeds) else 0
     try:
-        if descent_step is None:
+        if descent_step is None and descend_from is None:
             pi = policy if callable(policy) else get_policy(policy, env, seed=first)
         elif policy == "expert" and isinstance(env.unwrapped, InsertionEnv):
-            pi = ExpertPolicy(env, seed=first, descent_step=descent_step)
+            pi = ExpertPolicy(env, seed=first, descent_step=descent_step, descend_from=descend_from)
         else:
-            raise ValueError(f"descent_step sets the expert of our insertion tasks, not {policy!r} on {env_id}")
+            raise ValueError(f"descent_step and descend_from set the expert of our insertion tasks, not {policy!r} on {env_id}")
     except Exception:
         env.close()
         raise

@@ -31,6 +31,7 @@ from drem_maniskill.experts.control import require_ee_control
 # Contact is declared when the wrist feels this much force along the approach axis.
 CONTACT_FORCE = 3.0
 PRESS_DEPTH = 0.002  # commanded below the surface when pressing: a few newtons through the arm's PD
+DESCEND_FROM_TOLERANCE = 0.001  # m: the arm's PD stops a little short of the pre-insertion point
 
 
 def _yaw_error(env) -> torch.Tensor:
@@ -131,18 +132,29 @@ class ExpertPolicy(ScriptedPolicy):
     fine_radius = 0.01  # m from the pre-insertion point the approach slows to fine_speed
     fine_speed = 0.15  # of the action range: 3 mm per step
 
-    def __init__(self, env, seed: int = 0, descent_step: Optional[float] = None):
+    descend_from = None  # m above the top face the aligned descent starts; None: wherever the tip aligned
+
+    def __init__(self, env, seed: int = 0, descent_step: Optional[float] = None, descend_from: Optional[float] = None):
         super().__init__(env, seed)
         if descent_step is not None:
             # A slower descent gives the tree more depths inside the hole (record-expert --descent-step).
             if not 0 < descent_step <= 0.02:
                 raise ValueError(f"descent_step is metres per step in (0, 0.02] (the controller's range), got {descent_step}")
             self.descent_step = float(descent_step)
+        if descend_from is not None:
+            # The expert usually aligns 2 cm above the opening and then crawls down at the entry step from there,
+            # spending half the demo hovering; from descend_from it approaches the pre-insertion point as it
+            # approached the axis (record-expert --descend-from, docs/drem.md).
+            if not 0 < descend_from <= 0.05:
+                raise ValueError(f"descend_from is metres above the socket's top face in (0, 0.05], got {descend_from}")
+            self.descend_from = float(descend_from)
 
     def act(self) -> torch.Tensor:
         tip, yaw, _ = self.state()
         radial = tip[:, :2].norm(dim=1)
         aligned = (radial < self.centred) & (yaw.abs() < np.deg2rad(2))
+        if self.descend_from is not None:
+            aligned = aligned & (tip[:, 2] < self.descend_from + DESCEND_FROM_TOLERANCE)
         # Once aligned above the hole (or already inside it), go down; never back up.
         self.phase = torch.where(aligned | (tip[:, 2] < 0), torch.ones_like(self.phase), self.phase)
         target = torch.zeros_like(tip)

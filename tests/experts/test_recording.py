@@ -54,6 +54,36 @@ def test_a_slower_expert_descent_records_more_steps_inside_the_hole(tmp_path, ta
     assert lengths[slow] >= lengths[fast] + gain, lengths
 
 
+def test_an_expert_that_descends_from_the_pre_insertion_point_hovers_fewer_steps_and_enters_the_same():
+    """``descend_from`` (record-expert --descend-from): the demo spends fewer steps above the opening, the same near it.
+
+    The expert aligns about 2 cm above the opening on seed 1000; by default it crawls down from there
+    at the entry's 2 mm a step (12 steps above the opening), with 6 mm it moves to the pre-insertion
+    point at its approach speed first. The last 6 mm above the opening and the insertion stay fine.
+    """
+    import gymnasium as gym
+
+    from drem_maniskill.experts.rollout import rollout
+    from drem_maniskill.experts.scripted import ExpertPolicy
+
+    env = gym.make("USBInsertion-v1", obs_mode="state_dict", control_mode="pd_ee_delta_pose")
+    try:
+        heights = {}
+        for descend_from in (None, 0.006):
+            ep = rollout(env, ExpertPolicy(env, seed=1000, descend_from=descend_from), 1000,
+                         measure=lambda e, *_: {"z": float(e.unwrapped.tip_pose_in_socket().p[0, 2])})
+            assert ep.success, descend_from
+            heights[descend_from] = np.asarray(ep.measures["z"])
+    finally:
+        env.close()
+    above = {k: int((z > 0).sum()) for k, z in heights.items()}
+    near = {k: int(((z > 0) & (z < 0.0065)).sum()) for k, z in heights.items()}
+    inside = {k: int((z < 0).sum()) for k, z in heights.items()}
+    assert above[0.006] <= above[None] - 4, above
+    assert abs(near[0.006] - near[None]) <= 1 and near[0.006] >= 3, near
+    assert inside[0.006] == inside[None], inside
+
+
 def test_descent_step_is_refused_where_there_is_no_insertion_expert(tmp_path):
     from drem_maniskill.experts.recording import record_expert
 
@@ -61,3 +91,7 @@ def test_descent_step_is_refused_where_there_is_no_insertion_expert(tmp_path):
         record_expert("PlugCharger-v1", str(tmp_path), seeds=[0], descent_step=0.002)
     with pytest.raises(ValueError, match="metres per step"):
         record_expert("PegInHole-v1", str(tmp_path), seeds=[0], descent_step=0.05)
+    with pytest.raises(ValueError, match="descend_from"):
+        record_expert("PlugCharger-v1", str(tmp_path), seeds=[0], descend_from=0.006)
+    with pytest.raises(ValueError, match="above the socket's top face"):
+        record_expert("PegInHole-v1", str(tmp_path), seeds=[0], descend_from=-0.01)
