@@ -56,6 +56,8 @@ def _measure(env, obs, action, info) -> dict:
         pass
     if "insertion_depth" in info:
         out["insertion_depth"] = float(info["insertion_depth"][0])
+    if "radial_offset" in info:
+        out["radial_offset"] = float(info["radial_offset"][0])
     if hasattr(u, "ft"):
         out["force"] = float(u.ft.buffer[0, -1, 2].abs())
     return out
@@ -64,7 +66,7 @@ def _measure(env, obs, action, info) -> dict:
 def examination_episode(env, policy_name: str, seed: int, stop_on_success: bool = True) -> dict:
     """One episode: per-step reward, success, normalized_dense, insertion depth and wrist force."""
     ep = rollout(env, get_policy(policy_name, env, seed=seed), seed, stop_on_success=stop_on_success, measure=_measure)
-    return dict(rewards=ep.rewards, success=ep.success, **{k: ep.measures.get(k, []) for k in ("force", "normalized_dense", "insertion_depth")})
+    return dict(rewards=ep.rewards, success=ep.success, **{k: ep.measures.get(k, []) for k in ("force", "normalized_dense", "insertion_depth", "radial_offset")})
 
 
 def _pooled_spearman(episodes: list, key: str) -> float | None:
@@ -118,14 +120,18 @@ def hold_targets(env) -> dict:
 
 HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
 INSERTION_START = 0.001  # m below the top face: the part has started going in
+AT_OPENING = 0.001  # m from the axis: the part is over the opening, not on the face beside it
 
 
 def contact_plateau(align: Sequence[dict], direct_final: float, contact: float = CONTACT_FORCE) -> dict:
     """Align Success's mean reward from its first contact to the start of insertion, over Direct Success's final reward.
 
     The paper's plateau: touching the face near the opening is progress, but not yet the goal.
+    Where the episodes hold ``radial_offset``, the same steps are also split into those on the face
+    (tip more than ``AT_OPENING`` off the axis) and those at the opening (aligned, in its mouth but
+    less than ``INSERTION_START`` in): the plateau averages both, and they read differently.
     """
-    plateaus = []
+    plateaus, steps = [], {"on_face": [], "at_opening": []}
     for ep in align:
         force, depth = np.asarray(ep["force"]), np.asarray(ep["insertion_depth"])
         touched = np.nonzero(force > contact)[0]
@@ -135,10 +141,20 @@ def contact_plateau(align: Sequence[dict], direct_final: float, contact: float =
         inserting = np.nonzero(depth[first:] > INSERTION_START)[0]
         end = first + (inserting[0] if len(inserting) else len(depth) - first)
         if end > first:
-            plateaus.append(float(np.mean(ep["rewards"][first:end])))
+            rewards = np.asarray(ep["rewards"][first:end], float)
+            plateaus.append(float(rewards.mean()))
+            if len(ep.get("radial_offset", [])) == len(depth):
+                on_face = np.asarray(ep["radial_offset"][first:end]) > AT_OPENING
+                steps["on_face"] += rewards[on_face].tolist()
+                steps["at_opening"] += rewards[~on_face].tolist()
     mean = float(np.mean(plateaus)) if plateaus else None
-    return dict(episodes=len(plateaus), mean_reward=mean, direct_success_final=direct_final,
-                fraction=None if mean is None or not direct_final else mean / direct_final)
+    out = dict(episodes=len(plateaus), mean_reward=mean, direct_success_final=direct_final,
+               fraction=None if mean is None or not direct_final else mean / direct_final)
+    for key, rewards in steps.items():
+        if rewards:
+            out[key] = dict(steps=len(rewards), mean_reward=float(np.mean(rewards)),
+                            fraction=float(np.mean(rewards)) / direct_final if direct_final else None)
+    return out
 
 
 FACE_LEAD_RANGE_MM = (0.5, 6.5)  # tip distances from the axis over which the face's lead is fitted

@@ -26,6 +26,19 @@ def test_contact_plateau_is_align_successs_reward_between_contact_and_insertion_
     out = contact_plateau([ep, untouched], direct_final=0.9)
     assert out["episodes"] == 1 and out["mean_reward"] == pytest.approx(0.6) and out["fraction"] == pytest.approx(0.6 / 0.9)
     assert contact_plateau([untouched], 0.9)["fraction"] is None
+    assert "on_face" not in out  # no radial offsets recorded: no split
+
+
+def test_contact_plateau_splits_its_steps_into_the_face_and_the_opening():
+    from drem_maniskill.pipeline.examine import contact_plateau
+
+    # Contact from step 1; on the face 3 mm and 2 mm off, then slid to the mouth (0.4 mm off, 0.3 mm in).
+    ep = dict(rewards=[0.2, 0.5, 0.7, 0.9, 1.0], force=[0, 6, 6, 2, 1], insertion_depth=[-0.01, 0.0, 0.0, 0.0003, 0.005],
+              radial_offset=[0.003, 0.003, 0.002, 0.0004, 0.0002])
+    out = contact_plateau([ep], direct_final=1.0)
+    assert out["mean_reward"] == pytest.approx(0.7)
+    assert out["on_face"] == dict(steps=2, mean_reward=pytest.approx(0.6), fraction=pytest.approx(0.6))
+    assert out["at_opening"] == dict(steps=1, mean_reward=pytest.approx(0.9), fraction=pytest.approx(0.9))
 
 
 def test_first_contact_loss_reads_the_reward_one_and_three_steps_after():
