@@ -142,7 +142,7 @@ class ExpertPolicy(ScriptedPolicy):
                 raise ValueError(f"descent_step is metres per step in (0, 0.02] (the controller's range), got {descent_step}")
             self.descent_step = float(descent_step)
         if descend_from is not None:
-            # The expert usually aligns 2 cm above the opening and then crawls down at the entry step from there,
+            # The expert usually aligns 2-3 cm above the opening and then crawls down at the entry step from there,
             # spending half the demo hovering; from descend_from it approaches the pre-insertion point as it
             # approached the axis (record-expert --descend-from, docs/drem.md).
             if not 0 < descend_from <= 0.05:

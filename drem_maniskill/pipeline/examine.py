@@ -64,7 +64,7 @@ def _measure(env, obs, action, info) -> dict:
 
 
 def examination_episode(env, policy_name: str, seed: int, stop_on_success: bool = True) -> dict:
-    """One episode: per-step reward, success, normalized_dense, insertion depth and wrist force."""
+    """One episode: per-step reward, success, normalized_dense, insertion depth, radial offset and wrist force."""
     ep = rollout(env, get_policy(policy_name, env, seed=seed), seed, stop_on_success=stop_on_success, measure=_measure)
     return dict(rewards=ep.rewards, success=ep.success, **{k: ep.measures.get(k, []) for k in ("force", "normalized_dense", "insertion_depth", "radial_offset")})
 
