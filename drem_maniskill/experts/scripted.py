@@ -161,7 +161,9 @@ class ExpertPolicy(ScriptedPolicy):
         # The entry is never faster than the descent: a descent_step below fine_step slows the whole insertion.
         step = torch.where(tip[:, 2] > -self.fine_depth, torch.full_like(tip[:, 2], min(self.fine_step, self.descent_step)),
                            torch.full_like(tip[:, 2], self.descent_step))
-        target[:, 2] = torch.where(self.phase == 1, tip[:, 2] - step, torch.full_like(tip[:, 2], self.pre_height))
+        # A descend_from below the pre-insertion point is approached instead, or the expert would stop short of it.
+        approach = self.pre_height if self.descend_from is None else min(self.pre_height, self.descend_from)
+        target[:, 2] = torch.where(self.phase == 1, tip[:, 2] - step, torch.full_like(tip[:, 2], approach))
         action = self.move(target, speed=0.5)
         # The last centimetre of the approach at fine_speed (per env: move() takes one speed).
         slow = (self.phase == 0) & ((tip - target).norm(dim=1) < self.fine_radius)
