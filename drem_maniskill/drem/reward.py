@@ -177,6 +177,11 @@ class DREMReward(nn.Module):
     @torch.no_grad()
     def embed(self, batch: dict) -> torch.Tensor:
         """Latent ``h(s)`` ``[B, 128]`` of raw inputs (uint8 images of any size, F/T)."""
+        # A CPU-simulated env rendering on a GPU hands out CUDA images and CPU F/T (seen on an H200):
+        # the inputs go where the model is.
+        dev = self.h_goal.device
+        if any(v.device != dev for v in batch.values()):
+            batch = {k: v.to(dev) for k, v in batch.items()}
         fast = self.fast_encoder()
         h = None
         if self._batch_size(batch) < self.FAST_MAX_BATCH:

@@ -166,3 +166,15 @@ def test_fast_path_gives_each_thread_its_own_result(shipped):
     for t in threads:
         t.join()
     assert not errors, errors[:2]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA: a CPU-simulated env rendering on a GPU")
+def test_inputs_on_another_device_go_where_the_reward_is(shipped):
+    # ManiSkill's CPU sim rendering on a GPU hands out CUDA images beside CPU F/T (seen on an H200).
+    inputs = _random_batch(2, 128, seed=7)
+    expected = shipped(inputs)
+    mixed = {k: (v.cuda() if k != "ft" else v) for k, v in inputs.items()}
+    torch.testing.assert_close(shipped(mixed), expected, atol=ATOL, rtol=0)
+    on_gpu = _random_reward(seed=3).cuda()
+    cpu_twin = _random_reward(seed=3)
+    torch.testing.assert_close(on_gpu(inputs).cpu(), cpu_twin(inputs), atol=ATOL, rtol=1e-4)
