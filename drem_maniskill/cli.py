@@ -56,7 +56,8 @@ def _cmd_sample(args) -> None:
                                        outward_lineages=args.outward_lineages,
                                        outward_children=args.outward_children, face_depth=args.face_depth,
                                        face_lineages=args.face_lineages, face_children=args.face_children,
-                                       face_step=args.face_step).items() if v is not None}
+                                       face_step=args.face_step, side_depth=args.side_depth,
+                                       side_step=args.side_step).items() if v is not None}
     config = SamplerConfig.preset(args.preset, **overrides)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
@@ -187,6 +188,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--face-lineages", type=int, help="face directions, one lineage each (default: 8)")
     p.add_argument("--face-children", type=int, help="random actions per face seed and depth (default: 60)")
     p.add_argument("--face-step", type=float, help="metres of travel the face phase's actions span (default: 0.0015)")
+    p.add_argument("--side-depth", type=int,
+                   help="depths the face lineages go on, over the face's edge and down beside the socket's block (not in "
+                        "the paper; needs --face-depth; default 0: off)")
+    p.add_argument("--side-step", type=float, help="metres of travel the side phase's actions span (default: 0.004)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")

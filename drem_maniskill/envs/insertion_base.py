@@ -82,6 +82,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
     grip_half_width: float = 0.0  # finger joint position that touches the part
     socket_height: float = 0.0  # socket top face above the floor
     part_radial_tolerance: float = 0.0  # tip-to-axis distance that still counts as "in the bore"
+    side_contact: float = 0.0  # tip-to-axis distance along the socket's x where the part touches the block's side
     yaw_symmetry: int = 0  # 0: round part (yaw free); k: part repeats every 2*pi/k
     max_yaw_error: float = np.pi  # insertion tolerance on yaw (keyed parts)
 

@@ -65,6 +65,11 @@ class PegInHoleEnv(InsertionEnv):
             self.peg_radius, self.peg_length / 2, material=material,
         )
 
+    @property
+    def side_contact(self) -> float:
+        """Tip-to-axis distance along the socket's x where the peg touches the block's side."""
+        return self.peg_radius + self.clearance / 2 + self.wall + self.peg_radius
+
     def _add_socket_shapes(self, builder, material):
         hole_radius = self.peg_radius + self.clearance / 2
         outer = hole_radius + self.wall

@@ -83,6 +83,11 @@ class USBInsertionEnv(InsertionEnv):
             builder.add_box_collision(sapien.Pose(p), half)
             builder.add_box_visual(sapien.Pose(p), half, material=mat)
 
+    @property
+    def side_contact(self) -> float:
+        """Tip-to-axis distance along the socket's x where the plug's shell touches the block's side."""
+        return (self.shell[0] + self.clearance) / 2 + self.housing_wall + self.shell[0] / 2
+
     def _add_socket_shapes(self, builder, material):
         ow = (self.shell[0] + self.clearance) / 2  # half opening
         oh = (self.shell[1] + self.clearance) / 2

@@ -233,13 +233,23 @@ class HoldPolicy(ScriptedPolicy):
     A target below the socket's top face off the opening presses the part on the face.
     """
 
-    def __init__(self, env, target, seed: int = 0, speed: float = 0.5):
+    VIA_REACHED = 0.001  # m from ``via`` at which the policy turns to ``target``
+
+    def __init__(self, env, target, seed: int = 0, speed: float = 0.5, via=None):
         super().__init__(env, seed)
         self.target = torch.as_tensor(target, dtype=torch.float32, device=self.device).expand(self.n, 3).clone()
         self.speed = speed
+        # A straight line from the start to a target beside the socket's block, below its top face,
+        # would catch the part on the block's edge: ``via`` (socket frame) is passed through first.
+        self.via = None if via is None else torch.as_tensor(via, dtype=torch.float32, device=self.device).expand(self.n, 3).clone()
 
     def act(self) -> torch.Tensor:
-        return self.move(self.target, speed=self.speed)
+        if self.via is None:
+            return self.move(self.target, speed=self.speed)
+        # phase 0: on the way to via, 1: past it (reset per env by ScriptedPolicy).
+        tip = self.env.tip_pose_in_socket().p
+        self.phase = torch.where((tip - self.via).norm(dim=1) < self.VIA_REACHED, torch.ones_like(self.phase), self.phase)
+        return self.move(torch.where(self.phase[:, None] == 1, self.target, self.via), speed=self.speed)
 
 
 class RandomPolicy(ScriptedPolicy):

@@ -107,15 +107,31 @@ FLOOR_BESIDE = 0.075  # m from the axis: clear of both sockets' blocks on the wa
 FLOOR_POSITION = f"pressed on the floor, {FLOOR_BESIDE * 1000:.0f} mm beside"
 
 
+SIDE_DOWN = 0.012  # m below the top face
+SIDE_CLEAR = 0.002  # m between the part and the block's side
+SIDE_POSITION = f"{SIDE_DOWN * 1000:.0f} mm down, {SIDE_CLEAR * 1000:.0f} mm beside the block's side"
+
+
 def hold_targets(env) -> dict:
-    """``HOLD_POSITIONS`` plus the part pressed on the floor ``FLOOR_BESIDE`` beside the socket (the task's height).
+    """``HOLD_POSITIONS`` plus the part pressed on the floor ``FLOOR_BESIDE`` beside the socket (the task's height),
+    and the part ``SIDE_CLEAR`` beside the side of the socket's block, ``SIDE_DOWN`` below its top face.
 
     Where SAC took the part when trained on the rewards of trees without the outward phase
     (``SamplerConfig.outward_depth``): pressed on the floor a few centimetres beside the socket,
-    which those rewards paid about as much as an insertion.
+    which those rewards paid about as much as an insertion. And on USBInsertion-v1, trained on the
+    reward of the ``--descend-from 0.006`` tree (stop 21, ``scripts/exploit_rewards.py``): lowered
+    along the block's side, 19-25 mm from the axis and 11-23 mm down, which that reward paid 0.77-0.90.
     """
-    floor = -(float(env.unwrapped.socket_height) + PRESS_DEPTH)
-    return {**HOLD_POSITIONS, FLOOR_POSITION: (0.0, -FLOOR_BESIDE, floor)}
+    u = env.unwrapped
+    floor = -(float(u.socket_height) + PRESS_DEPTH)
+    # Reached straight down from above it (hold_vias): a line from the start would land on the top face.
+    side = (-(float(u.side_contact) + SIDE_CLEAR), 0.0, -SIDE_DOWN)
+    return {**HOLD_POSITIONS, FLOOR_POSITION: (0.0, -FLOOR_BESIDE, floor), SIDE_POSITION: side}
+
+
+def hold_vias(env) -> dict:
+    """Points the hold of some ``hold_targets`` passes through first (``HoldPolicy(via=)``): above the block's side."""
+    return {SIDE_POSITION: (-(float(env.unwrapped.side_contact) + SIDE_CLEAR), 0.0, 0.010)}
 
 
 HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
@@ -217,7 +233,8 @@ def first_contact_loss(episode: dict, contact: float = CONTACT_FORCE) -> dict | 
     return dict(step=t, before=r[t - 1], after_1=r[t], after_3=r[t + 2] if t + 2 < len(r) else None)
 
 
-def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS) -> dict:
+def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS,
+                   vias: dict | None = None) -> dict:
     """The reward with the tip held at each of ``positions`` (and the expert's insertion), per seed.
 
     Each seed is a reset with the task's colour randomisation, so the spread of one position's
@@ -229,7 +246,7 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
     for name, target in tqdm(positions.items(), desc="examine: hold positions", unit="position", disable=None):
         rewards, errors = [], []
         for seed in seeds:
-            ep = rollout(env, HoldPolicy(env, target), int(seed), steps, stop_on_success=False)
+            ep = rollout(env, HoldPolicy(env, target, via=(vias or {}).get(name)), int(seed), steps, stop_on_success=False)
             rewards.append(ep.rewards[-1])
             reached = env.unwrapped.tip_pose_in_socket().p[0].cpu().numpy()
             errors.append(float(np.linalg.norm(reached - np.asarray(target)) * 1000))
@@ -269,7 +286,7 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         expert = [examination_episode(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
         curves = {p: [examination_episode(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
                   for p in policies}
-        held = hold_positions(env, seeds, hold_targets(env)) if is_insertion_task(env_id) else {}
+        held = hold_positions(env, seeds, hold_targets(env), vias=hold_vias(env)) if is_insertion_task(env_id) else {}
     finally:
         env.close()
     solved = [e for e in expert if e["success"]]
@@ -306,6 +323,9 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         # What a policy gains by pressing the part on the floor instead of inserting it (the trap SAC found).
         floor_beside_over_inserted=(held[FLOOR_POSITION]["mean"] / held["inserted"]["mean"]
                                     if FLOOR_POSITION in held and held["inserted"]["mean"] else None),
+        # The same for the part lowered along the block's side (the trap SAC found on the --descend-from USB reward).
+        side_over_inserted=(held[SIDE_POSITION]["mean"] / held["inserted"]["mean"]
+                            if SIDE_POSITION in held and held["inserted"]["mean"] else None),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],

@@ -111,6 +111,18 @@ class SamplerConfig:
     """Metres: the arm actions of the face phase span this much end-effector travel (the farthest child moves about this far)."""
     face_elevation: float = -30.0
     """Degrees above the horizontal of the face directions (negative: pressing down on the face as it slides)."""
+    side_depth: int = 0
+    """Depths of the side phase (not in the paper; 0: off; needs the face phase): each face lineage goes on from its
+    last seed, over the face's edge and down beside the socket's block, keeping the child farthest along its direction
+    at ``side_elevation``. SAC trained on a USB reward found the part lowered along the block's side, which the tree
+    held almost no node of and the reward paid like an insertion (docs/drem.md, "The side phase"). Side step ``k``
+    is labelled ``entry + face_depth + k``: farther from the goal than the face it left."""
+    side_children: int = 60
+    """Random actions per side seed and depth."""
+    side_step: float = 0.004
+    """Metres of end-effector travel the side phase's arm actions span."""
+    side_elevation: float = -60.0
+    """Degrees above the horizontal of the side directions (steeply down, over the edge and along the side)."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -129,10 +141,11 @@ def outward_directions(config: SamplerConfig) -> np.ndarray:
     return np.stack([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)], -1)
 
 
-def face_directions(config: SamplerConfig) -> np.ndarray:
-    """Unit vectors ``[face_lineages, 3]`` (world frame at the expert's placement) the face lineages slide along."""
+def face_directions(config: SamplerConfig, elevation_deg: Optional[float] = None) -> np.ndarray:
+    """Unit vectors ``[face_lineages, 3]`` (world frame at the expert's placement) the face lineages slide along
+    (at ``elevation_deg``, default ``face_elevation``; the side phase's at ``side_elevation``)."""
     azimuth = 2 * np.pi * np.arange(config.face_lineages) / config.face_lineages
-    elevation = np.deg2rad(config.face_elevation)
+    elevation = np.deg2rad(config.face_elevation if elevation_deg is None else elevation_deg)
     return np.stack([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation),
                      np.full(config.face_lineages, np.sin(elevation))], -1)
 
@@ -393,6 +406,9 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             f"{expert_path} recorded cameras {expert.camera_map}, but {expert.env_id} samples {sampler.adapter.camera_map}; "
             "record the expert with the same env and sensor configs"
         )
+    if config.side_depth > 0 and config.face_depth <= 0:
+        sampler.close()
+        raise ValueError("the side phase (--side-depth) goes on from the face phase's lineages: give --face-depth too")
     if config.face_depth > 0 and sampler.adapter.tip_in_socket() is None:
         sampler.close()
         raise ValueError(f"the face phase (--face-depth) needs one of our insertion tasks, which know where the part's "
@@ -442,6 +458,8 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             depth, seeds = _sample_outward(partial, sampler, pool, config, start_depth, depth, seeds, seed_nodes, progress)
         if config.face_depth > 0:
             _sample_face(partial, sampler, pool, config, start_depth, progress)
+        if config.side_depth > 0:
+            _sample_face(partial, sampler, pool, config, start_depth, progress, side=True)
         with h5py.File(partial, "a") as f:
             f.attrs["complete"] = True
             f.attrs["final_depth"] = depth
@@ -551,50 +569,69 @@ def _rotation_from(q: np.ndarray, q0: np.ndarray) -> np.ndarray:
 
 
 def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, start_depth: int,
-                 progress: bool) -> None:
+                 progress: bool, side: bool = False) -> None:
     """The face phase (``SamplerConfig.face_depth``): lineages that slide the part over the face from the opening.
 
     Lineage ``l``'s seed at face step ``k`` is labelled ``entry + k``: ``k`` small moves from the seed
     at the opening, which is ``entry`` from the goal. The child kept is the one farthest along the
     lineage's direction, less ``rotation_weight`` metres per radian it turned, so the part stays upright,
     and out of the opening (a child that went in is near the goal and stays a plain node).
+
+    ``side``: the side phase (``SamplerConfig.side_depth``), the same lineages going on from their last
+    face seeds along ``side_elevation`` (over the edge and down beside the block), step ``k`` labelled
+    ``entry + face_depth + k``.
     """
     entry = face_entry_depth(partial, start_depth)
-    directions = face_directions(config)
+    if side:
+        name, total, children, step = "side", config.side_depth, config.side_children, config.side_step
+        directions = face_directions(config, config.side_elevation)
+        first, label0 = f"face_{config.face_depth}", entry + config.face_depth
+    else:
+        name, total, children, step = "face", config.face_depth, config.face_children, config.face_step
+        directions = face_directions(config)
+        first, label0 = f"depth_{entry}", entry
     lineages = len(directions)
     with h5py.File(partial, "r") as f:
-        done = int(f.attrs.get("face_completed", 0))
-        g = f[f"seeds/depth_{entry}"] if done == 0 else f[f"seeds/face_{done}"]
+        if side and int(f.attrs.get("face_completed", 0)) < config.face_depth:
+            raise ValueError(f"{partial}: the side phase starts where the face phase ended, which is not complete")
+        done = int(f.attrs.get(f"{name}_completed", 0))
+        g = f[f"seeds/{first}"] if done == 0 else f[f"seeds/{name}_{done}"]
         states, flags, nodes = g["state"][()], g["in_start_region"][()], [int(n) for n in g["node"][()]]
         entry_node = int(f[f"seeds/depth_{entry}/node"][0])
         origin = f["tcp_pose"][entry_node][:3].astype(np.float64)
         upright = f["tcp_pose"][entry_node][3:7].astype(np.float64)
-    if done == 0:
+    if done == 0 and not side:
         states, flags, nodes = [states[0]] * lineages, [flags[0]] * lineages, [nodes[0]] * lineages
     seeds = [dict(state=s, in_start_region=r) for s, r in zip(states, flags)]
-    scale = float(np.clip(config.face_step / sampler.translation_limit, config.min_action_scale, config.action_scale))
-    bar = tqdm(total=config.face_depth, initial=done, desc="face sampling", unit="depth", disable=not progress)
-    for k in range(done, config.face_depth):
-        merged = _children_of(sampler, pool, config, seeds, nodes, entry + k, config.face_children, scale, stream=4)
+    scale = float(np.clip(step / sampler.translation_limit, config.min_action_scale, config.action_scale))
+    bar = tqdm(total=total, initial=done, desc=f"{name} sampling", unit="depth", disable=not progress)
+    for k in range(done, total):
+        merged = _children_of(sampler, pool, config, seeds, nodes, label0 + k, children, scale, stream=5 if side else 4)
         penalty = config.rotation_weight * _rotation_from(merged["ee"][:, 3:7].astype(np.float64), upright)
-        # A child that went down into the opening is near the goal, not on the face: never a face seed.
-        penalty[merged["tip_in_socket"][:, 2] < FACE_SEED_HEIGHT] = np.inf
+        if not side:  # a child that went down into the opening is near the goal, not on the face: never a face seed
+            penalty[merged["tip_in_socket"][:, 2] < FACE_SEED_HEIGHT] = np.inf
         chosen = _farthest_along(merged["ee"], origin, directions, penalty)
-        nodes = _append_depth(partial, merged, entry + k + 1, chosen, group=f"face_{k + 1}",
-                              counter="face_completed", count=k + 1)
+        nodes = _append_depth(partial, merged, label0 + k + 1, chosen, group=f"{name}_{k + 1}",
+                              counter=f"{name}_completed", count=k + 1)
         seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
         bar.update(1)
     bar.close()
 
 
 RESUMABLE_SAMPLER_FIELDS = ("max_depth",)  # a run that gave up at max_depth resumes with a larger one
+SIDE_FIELDS = ("side_depth", "side_children", "side_step", "side_elevation")
 
 
 def _resumable(saved: dict, now: dict) -> bool:
-    """Whether a partial tree with header ``saved`` can be continued under ``now``: the same but for ``max_depth``."""
+    """Whether a partial tree with header ``saved`` can be continued under ``now``: the same but for ``max_depth``,
+    or a tree without the side phase (or with fewer of its depths, the same otherwise) gaining it."""
     def strip(h):
-        return {**h, "config": {k: v for k, v in h.get("config", {}).items() if k not in RESUMABLE_SAMPLER_FIELDS}}
-    return strip(saved) == strip(now)
+        drop = RESUMABLE_SAMPLER_FIELDS + SIDE_FIELDS
+        return {**h, "config": {k: v for k, v in h.get("config", {}).items() if k not in drop}}
+    old, new = saved.get("config", {}), now.get("config", {})
+    if old.get("side_depth", 0) > 0 and any(old.get(k) != new.get(k) for k in SIDE_FIELDS[1:]):
+        return False
+    return strip(saved) == strip(now) and old.get("side_depth", 0) <= new.get("side_depth", 0)
 
 
 def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarray, config: SamplerConfig,

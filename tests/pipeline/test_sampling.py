@@ -263,3 +263,35 @@ def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(
         along = np.array(along)
         # Each lineage slides away from the opening along its own direction, a millimetre or more in three steps (of 6 children each).
         assert np.all(np.diff(along, axis=0) > 0) and np.all(along[-1] > 0.001), along
+
+
+@pytest.mark.slow
+def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_them(pipeline, tmp_path, monkeypatch):
+    """The side phase continues each face lineage, labelled past it, along its steep direction; a complete tree without
+    it gains it by a resume that samples the side depths alone, and an interrupted side phase resumes."""
+    face = SamplerConfig.preset("tiny", face_depth=2, face_lineages=4, face_children=6)
+    out = tmp_path / "tree.h5"
+    backward_sample(pipeline["expert"], str(out), face, progress=False)
+    with pytest.raises(ValueError, match="--face-depth"):
+        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", side_depth=2), progress=False)
+    grown = tmp_path / "grown.h5"
+    grown.with_name(grown.name + ".partial").write_bytes(out.read_bytes())
+    side = SamplerConfig.preset("tiny", face_depth=2, face_lineages=4, face_children=6, side_depth=3, side_children=6)
+    calls = _interrupt_then_resume(pipeline["expert"], grown, side, monkeypatch,
+                                   lambda path, depth, chosen, kw: kw.get("group") == "side_2")
+    assert calls == ["side_2", "side_3"]  # nothing of the tree it grew from again
+    with h5py.File(grown, "r") as f, h5py.File(out, "r") as ref:
+        n = len(ref["depth"])
+        np.testing.assert_array_equal(f["depth"][:n], ref["depth"][()])
+        entry = face_entry_depth(grown, int(f.attrs["start_depth"]))
+        assert int(f.attrs["side_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 6
+        # Side step k's nodes are labelled past the face phase's last: entry + face_depth + k.
+        assert np.array_equal(f["depth"][n:], np.repeat(entry + 2 + np.arange(1, 4), 4 * 6))
+        parent, tcp = f["parent"][()], f["tcp_pose"][()]
+        assert np.all(parent[n : n + 24].reshape(4, 6) == f["seeds/face_2/node"][()][:, None])  # from each face lineage's end
+        directions = face_directions(side, side.side_elevation)
+        assert np.all(directions[:, 2] < -0.8)  # steeply down
+        origin = tcp[int(f["seeds/depth_%d/node" % entry][0]), :3]
+        along = np.array([np.einsum("lx,lx->l", tcp[f[f"seeds/side_{k}/node"][()], :3] - origin, directions) for k in range(1, 4)])
+        assert np.all(np.diff(along, axis=0) > 0), along  # each lineage goes on along its own direction
+    assert json.loads(h5py.File(grown, "r").attrs["header"])["config"]["side_depth"] == 3
