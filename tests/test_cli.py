@@ -41,17 +41,22 @@ def test_chain_record_sample_train_examine(tmp_path):
     assert quality["success_rate"]["direct_success"] == 1.0
     assert -1 <= quality["spearman_with_normalized_dense"] <= 1 and -1 <= quality["spearman_with_insertion_depth"] <= 1
     assert len(quality["dense_curves"]["random"][0]) == len(quality["curves"]["random"][0])
-    from drem_maniskill.pipeline.examine import HOLD_POSITIONS, SIDE_POSITION
+    from drem_maniskill.pipeline.examine import FACE_PUSHED, HOLD_POSITIONS, SIDE_POSITION, SIDE_PUSHED
 
     held = quality["held_positions"]
     floor = "pressed on the floor, 75 mm beside"
-    assert list(held) == [*HOLD_POSITIONS, floor, SIDE_POSITION, "inserted"]
+    assert list(held) == [*HOLD_POSITIONS, floor, SIDE_POSITION, SIDE_PUSHED, FACE_PUSHED, "inserted"]
     assert all(v["reached_error_mm"] < 2.0 for k, v in held.items() if k != "inserted" and "beside" not in k)
     # Pressed on the floor: 2 mm short of the target below it, nowhere else.
     assert 1.0 < held[floor]["reached_error_mm"] < 3.0
     assert quality["floor_beside_over_inserted"] == pytest.approx(held[floor]["mean"] / held["inserted"]["mean"])
     assert held[SIDE_POSITION]["reached_error_mm"] < 0.5  # beside the block's side, clear of it
     assert quality["side_over_inserted"] == pytest.approx(held[SIDE_POSITION]["mean"] / held["inserted"]["mean"])
+    # Pushed into the block's side and down: the plug's overmould stops on the block's edge, 8 mm above the target.
+    assert 7.0 < held[SIDE_PUSHED]["reached_error_mm"] < 9.0
+    assert quality["side_pushed_over_inserted"] == pytest.approx(held[SIDE_PUSHED]["mean"] / held["inserted"]["mean"])
+    assert 8.0 < held[FACE_PUSHED]["reached_error_mm"] < 11.0  # on the face, 8 mm above its target and slid out
+    assert quality["face_pushed_over_inserted"] == pytest.approx(held[FACE_PUSHED]["mean"] / held["inserted"]["mean"])
     assert quality["colour_spread"]["max_std"] == max(v["std"] for k, v in held.items() if k != "inserted")
     assert {"episodes", "mean_reward", "direct_success_final", "fraction"} <= set(quality["contact_plateau"])
     assert set(quality["contact_plateau"]) - {"episodes", "mean_reward", "direct_success_final", "fraction"} <= {"on_face", "at_opening"}

@@ -240,16 +240,22 @@ class HoldPolicy(ScriptedPolicy):
         self.target = torch.as_tensor(target, dtype=torch.float32, device=self.device).expand(self.n, 3).clone()
         self.speed = speed
         # A straight line from the start to a target beside the socket's block, below its top face,
-        # would catch the part on the block's edge: ``via`` (socket frame) is passed through first.
-        self.via = None if via is None else torch.as_tensor(via, dtype=torch.float32, device=self.device).expand(self.n, 3).clone()
+        # would catch the part on the block's edge: the ``via`` points (socket frame, ``[3]`` or ``[K, 3]``)
+        # are passed through first, in order.
+        if via is None:
+            self.waypoints = self.target[None]
+        else:
+            via = torch.as_tensor(via, dtype=torch.float32, device=self.device).reshape(-1, 3)
+            self.waypoints = torch.cat([via[:, None].expand(-1, self.n, 3), self.target[None]])
 
     def act(self) -> torch.Tensor:
-        if self.via is None:
-            return self.move(self.target, speed=self.speed)
-        # phase 0: on the way to via, 1: past it (reset per env by ScriptedPolicy).
+        # phase k: on the way to waypoint k (reset to 0 per env by ScriptedPolicy); the last is the target.
         tip = self.env.tip_pose_in_socket().p
-        self.phase = torch.where((tip - self.via).norm(dim=1) < self.VIA_REACHED, torch.ones_like(self.phase), self.phase)
-        return self.move(torch.where(self.phase[:, None] == 1, self.target, self.via), speed=self.speed)
+        rows = torch.arange(self.n, device=self.device)
+        last = len(self.waypoints) - 1
+        reached = (tip - self.waypoints[self.phase.clamp(max=last), rows]).norm(dim=1) < self.VIA_REACHED
+        self.phase = torch.where(reached & (self.phase < last), self.phase + 1, self.phase)
+        return self.move(self.waypoints[self.phase, rows], speed=self.speed)
 
 
 class RandomPolicy(ScriptedPolicy):

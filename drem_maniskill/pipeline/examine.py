@@ -110,6 +110,9 @@ FLOOR_POSITION = f"pressed on the floor, {FLOOR_BESIDE * 1000:.0f} mm beside"
 SIDE_DOWN = 0.012  # m below the top face
 SIDE_CLEAR = 0.002  # m between the part and the block's side
 SIDE_POSITION = f"{SIDE_DOWN * 1000:.0f} mm down, {SIDE_CLEAR * 1000:.0f} mm beside the block's side"
+SIDE_PUSH = 0.008  # m the pushed hold aims below where it reaches the part down beside the block
+SIDE_PUSHED = "pushed down against the block's side"
+FACE_PUSHED = f"pushed down on the face beside the opening (aimed 3 mm off, {SIDE_PUSH * 1000:.0f} mm down)"
 
 
 def hold_targets(env) -> dict:
@@ -121,17 +124,26 @@ def hold_targets(env) -> dict:
     which those rewards paid about as much as an insertion. And on USBInsertion-v1, trained on the
     reward of the ``--descend-from 0.006`` tree (stop 21, ``scripts/exploit_rewards.py``): lowered
     along the block's side, 19-25 mm from the axis and 11-23 mm down, which that reward paid 0.77-0.90.
+    Then the part pushed into the block's side and down from there (``SIDE_PUSHED``), as that SAC policy
+    held it: 50-110 N sideways and 50-130 N down at the wrist; on USB the plug's overmould comes to rest on
+    the block's top edge with its shell beside the block (on the peg nothing stops it before the target).
     """
     u = env.unwrapped
     floor = -(float(u.socket_height) + PRESS_DEPTH)
     # Reached straight down from above it (hold_vias): a line from the start would land on the top face.
     side = (-(float(u.side_contact) + SIDE_CLEAR), 0.0, -SIDE_DOWN)
-    return {**HOLD_POSITIONS, FLOOR_POSITION: (0.0, -FLOOR_BESIDE, floor), SIDE_POSITION: side}
+    pushed = (-(float(u.side_contact) - 0.001), 0.0, -SIDE_DOWN - SIDE_PUSH)
+    # As "pressed 3 mm beside", aiming SIDE_PUSH below the face: the part slides off the rim to 8-9 mm from the
+    # axis (USB and peg alike) and pushes there with 20-25 N (SAC's policy pushed 77 N, 1-3 mm off).
+    face = (0.003, 0.0, -SIDE_PUSH)
+    return {**HOLD_POSITIONS, FLOOR_POSITION: (0.0, -FLOOR_BESIDE, floor), SIDE_POSITION: side, SIDE_PUSHED: pushed,
+            FACE_PUSHED: face}
 
 
 def hold_vias(env) -> dict:
     """Points the hold of some ``hold_targets`` passes through first (``HoldPolicy(via=)``): above the block's side."""
-    return {SIDE_POSITION: (-(float(env.unwrapped.side_contact) + SIDE_CLEAR), 0.0, 0.010)}
+    above = (-(float(env.unwrapped.side_contact) + SIDE_CLEAR), 0.0, 0.010)
+    return {SIDE_POSITION: above, SIDE_PUSHED: (above, (above[0], 0.0, -SIDE_DOWN + 0.001))}
 
 
 HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
@@ -323,9 +335,14 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         # What a policy gains by pressing the part on the floor instead of inserting it (the trap SAC found).
         floor_beside_over_inserted=(held[FLOOR_POSITION]["mean"] / held["inserted"]["mean"]
                                     if FLOOR_POSITION in held and held["inserted"]["mean"] else None),
-        # The same for the part lowered along the block's side (the trap SAC found on the --descend-from USB reward).
+        # The same for the part lowered beside the block's side, and pushed into it and down (the trap SAC
+        # found on the --descend-from USB reward).
         side_over_inserted=(held[SIDE_POSITION]["mean"] / held["inserted"]["mean"]
                             if SIDE_POSITION in held and held["inserted"]["mean"] else None),
+        side_pushed_over_inserted=(held[SIDE_PUSHED]["mean"] / held["inserted"]["mean"]
+                                   if SIDE_PUSHED in held and held["inserted"]["mean"] else None),
+        face_pushed_over_inserted=(held[FACE_PUSHED]["mean"] / held["inserted"]["mean"]
+                                   if FACE_PUSHED in held and held["inserted"]["mean"] else None),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],

@@ -123,6 +123,13 @@ class SamplerConfig:
     """Metres of end-effector travel the side phase's arm actions span."""
     side_elevation: float = -60.0
     """Degrees above the horizontal of the side directions (steeply down, over the edge and along the side)."""
+    push_children: int = 0
+    """Full-range random actions from every face and side seed (not in the paper; 0: off), labelled one depth past
+    their seed and never seeds themselves. Lineage steps of a few millimetres press lightly (the face and side nodes
+    read under 20 N at the wrist), so the only hard presses in a tree were the goal's children pushing on the
+    opening's floor, and a reward trained on it paid a part pushed hard on the face or against the block's side
+    like an insertion (docs/drem.md, "The side phase"). These children push the part into the face, the edge and
+    the side with tens of newtons, labelled where they are: as far from the goal as the seed they left, plus one."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -406,6 +413,9 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             f"{expert_path} recorded cameras {expert.camera_map}, but {expert.env_id} samples {sampler.adapter.camera_map}; "
             "record the expert with the same env and sensor configs"
         )
+    if config.push_children > 0 and config.face_depth <= 0:
+        sampler.close()
+        raise ValueError("the push children (--push-children) start from the face and side lineages' seeds: give --face-depth too")
     if config.side_depth > 0 and config.face_depth <= 0:
         sampler.close()
         raise ValueError("the side phase (--side-depth) goes on from the face phase's lineages: give --face-depth too")
@@ -460,6 +470,8 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             _sample_face(partial, sampler, pool, config, start_depth, progress)
         if config.side_depth > 0:
             _sample_face(partial, sampler, pool, config, start_depth, progress, side=True)
+        if config.push_children > 0:
+            _sample_push(partial, sampler, pool, config, progress)
         with h5py.File(partial, "a") as f:
             f.attrs["complete"] = True
             f.attrs["final_depth"] = depth
@@ -618,20 +630,52 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     bar.close()
 
 
+def push_groups(config: SamplerConfig) -> list:
+    """The seed groups the push children start from, in sampling order: ``face_1`` .. and ``side_1`` .."""
+    return [f"face_{k}" for k in range(1, config.face_depth + 1)] + [f"side_{k}" for k in range(1, config.side_depth + 1)]
+
+
+def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, progress: bool) -> None:
+    """The push children (``SamplerConfig.push_children``): full-range actions from each face and side seed.
+
+    Group ``i`` of ``push_groups`` gets ``push_<i + 1>`` (no seeds), its children labelled one past the seed's depth;
+    ``push_completed`` counts the groups done, so an interrupted run resumes at the next group.
+    """
+    groups = push_groups(config)
+    with h5py.File(partial, "r") as f:
+        done = int(f.attrs.get("push_completed", 0))
+        if int(f.attrs.get("face_completed", 0)) < config.face_depth or int(f.attrs.get("side_completed", 0)) < config.side_depth:
+            raise ValueError(f"{partial}: the push children start from the face and side seeds, which are not complete")
+    bar = tqdm(total=len(groups), initial=done, desc="push sampling", unit="group", disable=not progress)
+    for i in range(done, len(groups)):
+        with h5py.File(partial, "r") as f:
+            g = f[f"seeds/{groups[i]}"]
+            states, flags, nodes = g["state"][()], g["in_start_region"][()], [int(n) for n in g["node"][()]]
+            depth = int(f["depth"][nodes[0]])
+        seeds = [dict(state=s, in_start_region=r) for s, r in zip(states, flags)]
+        merged = _children_of(sampler, pool, config, seeds, nodes, depth, config.push_children, config.action_scale, stream=6)
+        _append_depth(partial, merged, depth + 1, np.zeros(0, np.int64), group=f"push_{i + 1}",
+                      counter="push_completed", count=i + 1)
+        bar.update(1)
+    bar.close()
+
+
 RESUMABLE_SAMPLER_FIELDS = ("max_depth",)  # a run that gave up at max_depth resumes with a larger one
 SIDE_FIELDS = ("side_depth", "side_children", "side_step", "side_elevation")
+GROWABLE = {"side_depth": SIDE_FIELDS[1:], "push_children": ()}  # phases a finished tree can gain: field -> fields that must match
 
 
 def _resumable(saved: dict, now: dict) -> bool:
     """Whether a partial tree with header ``saved`` can be continued under ``now``: the same but for ``max_depth``,
-    or a tree without the side phase (or with fewer of its depths, the same otherwise) gaining it."""
+    or a tree without the side phase or the push children (``GROWABLE``) gaining them."""
     def strip(h):
-        drop = RESUMABLE_SAMPLER_FIELDS + SIDE_FIELDS
+        drop = RESUMABLE_SAMPLER_FIELDS + SIDE_FIELDS + tuple(GROWABLE)
         return {**h, "config": {k: v for k, v in h.get("config", {}).items() if k not in drop}}
     old, new = saved.get("config", {}), now.get("config", {})
-    if old.get("side_depth", 0) > 0 and any(old.get(k) != new.get(k) for k in SIDE_FIELDS[1:]):
-        return False
-    return strip(saved) == strip(now) and old.get("side_depth", 0) <= new.get("side_depth", 0)
+    for phase, same in GROWABLE.items():
+        if old.get(phase, 0) > 0 and (old.get(phase) != new.get(phase) or any(old.get(k) != new.get(k) for k in same)):
+            return False  # a phase once begun resumes only as it was
+    return strip(saved) == strip(now)
 
 
 def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarray, config: SamplerConfig,

@@ -38,3 +38,17 @@ def test_a_hold_through_a_via_point_goes_straight_down_beside_the_block():
     low = path[:, 2] < 0.001
     assert low.any() and (path[low, 0] < -(side + 0.001)).all()  # never over the block below its top face
     assert (abs(path[low, 0] - target[0]) < 5e-4).all()  # straight down from the via point
+
+
+
+def test_a_hold_pushed_against_the_blocks_side_presses_it_sideways_and_down_where_the_overmould_meets_its_edge():
+    from drem_maniskill.pipeline.examine import SIDE_DOWN, SIDE_PUSHED, hold_targets, hold_vias
+
+    env = make_env("USBInsertion-v1", obs_mode="state_dict")
+    target, via = hold_targets(env)[SIDE_PUSHED], hold_vias(env)[SIDE_PUSHED]
+    side = env.unwrapped.side_contact
+    path = _hold_path(env, target, via)
+    assert abs(path[-1, 0] + side) < 5e-4  # the shell against the block's side, not through it
+    assert abs(path[-1, 2] + SIDE_DOWN) < 1e-3  # the overmould (12 mm above the tip) on the block's top edge
+    force = env.unwrapped.ft.buffer[0, -1, :3].cpu().numpy()
+    assert force[0] > 20 and force[2] < -20  # pressed into the side and down, as the SAC policy did

@@ -295,3 +295,32 @@ def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_th
         along = np.array([np.einsum("lx,lx->l", tcp[f[f"seeds/side_{k}/node"][()], :3] - origin, directions) for k in range(1, 4)])
         assert np.all(np.diff(along, axis=0) > 0), along  # each lineage goes on along its own direction
     assert json.loads(h5py.File(grown, "r").attrs["header"])["config"]["side_depth"] == 3
+
+
+@pytest.mark.slow
+def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_one_depth_past_it(pipeline, tmp_path, monkeypatch):
+    """Push children: from each face and side seed, full-range actions, labelled one past the seed, never seeds; resumable."""
+    from drem_maniskill.pipeline.sampling import push_groups
+
+    base = dict(face_depth=2, face_lineages=4, face_children=6, side_depth=1, side_children=6)
+    grown = tmp_path / "tree.h5"
+    backward_sample(pipeline["expert"], str(grown), SamplerConfig.preset("tiny", **base), progress=False)
+    with h5py.File(grown, "r") as f:
+        n = len(f["depth"])
+    grown.rename(grown.with_name(grown.name + ".partial"))
+    config = SamplerConfig.preset("tiny", **base, push_children=5)
+    assert push_groups(config) == ["face_1", "face_2", "side_1"]
+    calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
+                                   lambda path, depth, chosen, kw: kw.get("group") == "push_2")
+    assert calls == ["push_2", "push_3"]
+    with h5py.File(grown, "r") as f:
+        assert int(f.attrs["push_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 5
+        depth, parent, tcp = f["depth"][()], f["parent"][()], f["tcp_pose"][()]
+        kids = np.arange(n, len(depth))
+        seeds = np.concatenate([f[f"seeds/{g}/node"][()] for g in push_groups(config)])
+        assert np.array_equal(parent[kids], np.repeat(seeds, 5))  # five from each seed, in group order
+        assert np.array_equal(depth[kids], depth[parent[kids]] + 1) and not f["is_seed"][()][kids].any()
+        moved = np.linalg.norm(tcp[kids, :3] - tcp[parent[kids], :3], axis=1)
+        lineage = np.arange(n - 4 * 6, n)  # the side phase's children: 4 mm actions
+        lineage_moved = np.linalg.norm(tcp[lineage, :3] - tcp[parent[lineage], :3], axis=1)
+        assert moved.max() > 2 * lineage_moved.max()  # full-range actions reach much farther than the lineage steps
