@@ -253,7 +253,7 @@ class HoldPolicy(ScriptedPolicy):
         tip = self.env.tip_pose_in_socket().p
         rows = torch.arange(self.n, device=self.device)
         last = len(self.waypoints) - 1
-        reached = (tip - self.waypoints[self.phase.clamp(max=last), rows]).norm(dim=1) < self.VIA_REACHED
+        reached = (tip - self.waypoints[self.phase, rows]).norm(dim=1) < self.VIA_REACHED
         self.phase = torch.where(reached & (self.phase < last), self.phase + 1, self.phase)
         return self.move(self.waypoints[self.phase, rows], speed=self.speed)
 

@@ -131,7 +131,7 @@ def hold_targets(env) -> dict:
     u = env.unwrapped
     floor = -(float(u.socket_height) + PRESS_DEPTH)
     # Reached straight down from above it (hold_vias): a line from the start would land on the top face.
-    side = (-(float(u.side_contact) + SIDE_CLEAR), 0.0, -SIDE_DOWN)
+    side = (_beside_side(env), 0.0, -SIDE_DOWN)
     pushed = (-(float(u.side_contact) - 0.001), 0.0, -SIDE_DOWN - SIDE_PUSH)
     # As "pressed 3 mm beside", aiming SIDE_PUSH below the face: the part slides off the rim to 8-9 mm from the
     # axis (USB and peg alike) and pushes there with 20-25 N (SAC's policy pushed 77 N, 1-3 mm off).
@@ -140,9 +140,14 @@ def hold_targets(env) -> dict:
             FACE_PUSHED: face}
 
 
+def _beside_side(env) -> float:
+    """Socket-frame x of the tip with the part ``SIDE_CLEAR`` outside the block's -x side."""
+    return -(float(env.unwrapped.side_contact) + SIDE_CLEAR)
+
+
 def hold_vias(env) -> dict:
     """Points the hold of some ``hold_targets`` passes through first (``HoldPolicy(via=)``): above the block's side."""
-    above = (-(float(env.unwrapped.side_contact) + SIDE_CLEAR), 0.0, 0.010)
+    above = (_beside_side(env), 0.0, 0.010)
     return {SIDE_POSITION: above, SIDE_PUSHED: (above, (above[0], 0.0, -SIDE_DOWN + 0.001))}
 
 
@@ -274,6 +279,13 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
     return out
 
 
+def _over_inserted(held: dict, position: str) -> float | None:
+    """A held position's mean reward over the finished insertion's (None where either is missing)."""
+    if position not in held or not held.get("inserted", {}).get("mean"):
+        return None
+    return held[position]["mean"] / held["inserted"]["mean"]
+
+
 def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float] | None:
     """Reward just before and just after the last fall of the wrist force below ``contact``."""
     losses = contact_losses(episode, contact)
@@ -333,16 +345,12 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         held_positions={k: {m: v[m] for m in ("mean", "std", "reached_error_mm")} for k, v in held.items()},
         inserted_reward_std=held["inserted"]["std"] if held else None,
         # What a policy gains by pressing the part on the floor instead of inserting it (the trap SAC found).
-        floor_beside_over_inserted=(held[FLOOR_POSITION]["mean"] / held["inserted"]["mean"]
-                                    if FLOOR_POSITION in held and held["inserted"]["mean"] else None),
+        floor_beside_over_inserted=_over_inserted(held, FLOOR_POSITION),
         # The same for the part lowered beside the block's side, and pushed into it and down (the trap SAC
-        # found on the --descend-from USB reward).
-        side_over_inserted=(held[SIDE_POSITION]["mean"] / held["inserted"]["mean"]
-                            if SIDE_POSITION in held and held["inserted"]["mean"] else None),
-        side_pushed_over_inserted=(held[SIDE_PUSHED]["mean"] / held["inserted"]["mean"]
-                                   if SIDE_PUSHED in held and held["inserted"]["mean"] else None),
-        face_pushed_over_inserted=(held[FACE_PUSHED]["mean"] / held["inserted"]["mean"]
-                                   if FACE_PUSHED in held and held["inserted"]["mean"] else None),
+        # found on the --descend-from USB reward), and pushed down on the face.
+        side_over_inserted=_over_inserted(held, SIDE_POSITION),
+        side_pushed_over_inserted=_over_inserted(held, SIDE_PUSHED),
+        face_pushed_over_inserted=_over_inserted(held, FACE_PUSHED),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],

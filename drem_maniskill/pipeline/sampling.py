@@ -661,15 +661,15 @@ def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
 
 
 RESUMABLE_SAMPLER_FIELDS = ("max_depth",)  # a run that gave up at max_depth resumes with a larger one
-SIDE_FIELDS = ("side_depth", "side_children", "side_step", "side_elevation")
-GROWABLE = {"side_depth": SIDE_FIELDS[1:], "push_children": ()}  # phases a finished tree can gain: field -> fields that must match
+# Phases a finished tree can gain: field -> the fields that must match once the phase has begun.
+GROWABLE = {"side_depth": ("side_children", "side_step", "side_elevation"), "push_children": ()}
 
 
 def _resumable(saved: dict, now: dict) -> bool:
     """Whether a partial tree with header ``saved`` can be continued under ``now``: the same but for ``max_depth``,
     or a tree without the side phase or the push children (``GROWABLE``) gaining them."""
     def strip(h):
-        drop = RESUMABLE_SAMPLER_FIELDS + SIDE_FIELDS + tuple(GROWABLE)
+        drop = RESUMABLE_SAMPLER_FIELDS + tuple(GROWABLE) + sum(GROWABLE.values(), ())
         return {**h, "config": {k: v for k, v in h.get("config", {}).items() if k not in drop}}
     old, new = saved.get("config", {}), now.get("config", {})
     for phase, same in GROWABLE.items():
