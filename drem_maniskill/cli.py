@@ -57,7 +57,8 @@ def _cmd_sample(args) -> None:
                                        outward_children=args.outward_children, face_depth=args.face_depth,
                                        face_lineages=args.face_lineages, face_children=args.face_children,
                                        face_step=args.face_step, side_depth=args.side_depth,
-                                       side_step=args.side_step, push_children=args.push_children).items() if v is not None}
+                                       side_step=args.side_step, push_children=args.push_children,
+                                       goal_presses=args.goal_presses).items() if v is not None}
     config = SamplerConfig.preset(args.preset, **overrides)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
@@ -195,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--push-children", type=int,
                    help="full-range random actions from every face and side seed, labelled one past it: hard presses "
                         "away from the goal (not in the paper; needs --face-depth; default 0: off)")
+    p.add_argument("--goal-presses", type=int,
+                   help="full-range random actions pushing down from the goal, labelled depth 1: the inserted part "
+                        "pressed on the opening's floor (not in the paper; default 0: off)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")

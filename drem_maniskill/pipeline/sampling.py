@@ -130,6 +130,14 @@ class SamplerConfig:
     opening's floor, and a reward trained on it paid a part pushed hard on the face or against the block's side
     like an insertion (docs/drem.md, "The side phase"). These children push the part into the face, the edge and
     the side with tens of newtons, labelled where they are: as far from the goal as the seed they left, plus one."""
+    goal_presses: int = 0
+    """Random actions from the goal state pushing down over the whole range (not in the paper; 0: off),
+    labelled depth 1 and never seeds. A demo that descends slowly ends as soon as the part is far enough in, before
+    it reaches the opening's floor, and its goal's children (small moves, ``expert_step_scale``) barely touch the
+    floor, while a policy that inserts goes on pushing (the examination's at 39-84 N): a tree without such presses
+    put a pressed insertion far from the goal (docs/drem.md, "A slower entry as well"). These children push the
+    inserted part down with up to the arm's full step (sideways and twisting within the goal's own children's range):
+    still inserted, one step from the goal."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
@@ -286,6 +294,16 @@ class ChildSampler:
         return self.adapter.in_start_region(self.expert_first_ee, self.start_radius)
 
     @property
+    def vertical_dim(self) -> int:
+        """The action dim that moves the end effector up and down (an ``ee_delta_pos``/``pose`` arm controller's z)."""
+        controller = self.unwrapped.agent.controller
+        arm = getattr(controller, "controllers", {}).get("arm")
+        name = type(arm).__name__ if arm is not None else ""
+        if "EEPos" not in name and "EEPose" not in name:
+            raise ValueError(f"pushing down needs an end-effector delta arm controller (pd_ee_delta_pose), not {name or controller}")
+        return int((getattr(controller, "action_mapping", {}) or {}).get("arm", (0, 0))[0]) + 2
+
+    @property
     def translation_limit(self) -> float:
         """Metres of end-effector travel a full-scale arm action asks for (the controller's ``pos_upper``)."""
         arm = getattr(self.unwrapped.agent.controller, "controllers", {}).get("arm")
@@ -401,6 +419,7 @@ def action_scale_at(depth: int, expert_ee: np.ndarray, config: SamplerConfig, tr
 def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = SamplerConfig(), progress: bool = True) -> str:
     """Build the task progress tree from an expert trajectory; returns the dataset's path."""
     out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
     partial = out_path.with_name(out_path.name + ".partial")
     expert = load_expert(expert_path, config.episode)
     goal_index = expert.length - 1
@@ -472,6 +491,8 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             _sample_face(partial, sampler, pool, config, start_depth, progress, side=True)
         if config.push_children > 0:
             _sample_push(partial, sampler, pool, config, progress)
+        if config.goal_presses > 0:
+            _sample_goal_presses(partial, sampler, pool, config, action_scale_at(0, expert_ee, config, sampler.translation_limit))
         with h5py.File(partial, "a") as f:
             f.attrs["complete"] = True
             f.attrs["final_depth"] = depth
@@ -486,8 +507,12 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
 
 
 def _children_of(sampler: "ChildSampler", pool, config: SamplerConfig, seeds: list, seed_nodes: list, depth: int,
-                 num_children: int, scale: float, stream: int = 0) -> dict:
-    """``num_children`` children of every seed, each with fresh colours and placement where configured, merged in seed order."""
+                 num_children: int, scale: float, stream: int = 0, down: bool = False) -> dict:
+    """``num_children`` children of every seed, each with fresh colours and placement where configured, merged in seed order.
+
+    ``down``: the arm's vertical action component is drawn downwards over the whole range (``ChildSampler.vertical_dim``),
+    the others within ``scale``.
+    """
     # The random streams are functions of the depth, so a resumed run draws the same actions; colours and
     # placements have streams of their own, so turning them off leaves the actions as they were.
     rng = np.random.default_rng([config.seed, depth] + ([stream] if stream else []))
@@ -496,6 +521,8 @@ def _children_of(sampler: "ChildSampler", pool, config: SamplerConfig, seeds: li
     children = []
     for seed, node in zip(seeds, seed_nodes):
         actions = sampler.random_actions(rng, num_children, scale)
+        if down:
+            actions[:, sampler.vertical_dim] = -np.abs(actions[:, sampler.vertical_dim]) / scale * config.action_scale
         colors = sampler.random_colors(color_rng, num_children) if config.randomize_colors else None
         places = sampler.random_placements(place_rng, num_children) if config.randomize_placement else None
         if pool is None:
@@ -660,9 +687,27 @@ def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     bar.close()
 
 
+def _sample_goal_presses(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, scale: float) -> None:
+    """The goal presses (``SamplerConfig.goal_presses``): actions pushing down from the goal, labelled depth 1.
+
+    The vertical component spans the whole downward range; the others ``scale``, the goal's own children's range
+    (full-range sideways and twisting actions lever the part up and out of a tight opening, far from the goal).
+
+    Written as one group, ``goal_press`` (no seeds); ``goal_press_completed`` is set once it is, so a resume skips it.
+    """
+    with h5py.File(partial, "r") as f:
+        if int(f.attrs.get("goal_press_completed", 0)):
+            return
+        g = f["seeds/depth_0"]
+        seeds = [dict(state=s, in_start_region=r) for s, r in zip(g["state"][()], g["in_start_region"][()])]
+        nodes = [int(n) for n in g["node"][()]]
+    merged = _children_of(sampler, pool, config, seeds, nodes, 0, config.goal_presses, scale, stream=7, down=True)
+    _append_depth(partial, merged, 1, np.zeros(0, np.int64), group="goal_press", counter="goal_press_completed", count=1)
+
+
 RESUMABLE_SAMPLER_FIELDS = ("max_depth",)  # a run that gave up at max_depth resumes with a larger one
 # Phases a finished tree can gain: field -> the fields that must match once the phase has begun.
-GROWABLE = {"side_depth": ("side_children", "side_step", "side_elevation"), "push_children": ()}
+GROWABLE = {"side_depth": ("side_children", "side_step", "side_elevation"), "push_children": (), "goal_presses": ()}
 
 
 def _resumable(saved: dict, now: dict) -> bool:

@@ -324,3 +324,37 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
         lineage = np.arange(n - 4 * 6, n)  # the side phase's children: 4 mm actions
         lineage_moved = np.linalg.norm(tcp[lineage, :3] - tcp[parent[lineage], :3], axis=1)
         assert moved.max() > 2 * lineage_moved.max()  # full-range actions reach much farther than the lineage steps
+
+
+@pytest.mark.slow
+def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_it(pipeline, tmp_path, monkeypatch):
+    """Goal presses: children of the goal only, labelled depth 1, never seeds, pushed down on to the hole's floor
+    and still in it, pressing harder than the goal's own children; a finished tree gains them by a resume that
+    samples nothing else, and a second resume samples nothing."""
+    # Small moves near the goal (the expert's own step), as a slow demo's tree has: the goal's own children
+    # barely reach the floor 5 mm below it, and the presses' sideways and twisting actions stay as small.
+    base = dict(expert_step_scale=1.0, max_depth=80)
+    grown = tmp_path / "tree.h5"
+    backward_sample(pipeline["expert"], str(grown), SamplerConfig.preset("tiny", **base), progress=False)
+    with h5py.File(grown, "r") as f:
+        n = len(f["depth"])
+    grown.rename(grown.with_name(grown.name + ".partial"))
+    config = SamplerConfig.preset("tiny", **base, goal_presses=8)
+    calls = _count_depths(monkeypatch)
+    backward_sample(pipeline["expert"], str(grown), config, progress=False)
+    assert calls == ["goal_press"]
+    with h5py.File(grown, "r") as f:
+        assert int(f.attrs["goal_press_completed"]) == 1 and len(f["depth"]) == n + 8
+        depth, parent, tcp, tip, ft = f["depth"][()], f["parent"][()], f["tcp_pose"][()], f["tip_in_socket"][()], f["ft"][()]
+        kids = np.arange(n, n + 8)
+        assert np.all(depth[kids] == 1) and np.all(parent[kids] == 0) and not f["is_seed"][()][kids].any()
+        own = np.nonzero((depth[:n] == 1) & (parent[:n] == 0))[0]  # the backward phase's children of the goal
+        # Down on average, millimetres below the goal and its own children (whose vertical actions go either way).
+        assert tcp[kids, 2].mean() < min(tcp[0, 2], tcp[own, 2].mean()) - 0.002, (tcp[kids, 2], tcp[own, 2], tcp[0, 2])
+        assert np.all(tip[kids, 2] < FACE_ENTRY_HEIGHT)  # still in the hole
+        force = np.linalg.norm(ft[:, -1, :3], axis=1)
+        assert np.median(force[kids]) > 2 * np.median(force[own]) + 5, (force[kids], force[own])
+    calls.clear()
+    grown.rename(grown.with_name(grown.name + ".partial"))
+    backward_sample(pipeline["expert"], str(grown), config, progress=False)
+    assert calls == []
