@@ -34,6 +34,8 @@ def measures(q: dict) -> list:
         ("finished, held insertion: standard deviation over episodes", _f(q.get("inserted_reward_std")), "<= 0.1"),
         ("pressed on the floor 75 mm beside the socket, over a finished insertion (the trap SAC found)",
          _f(q.get("floor_beside_over_inserted")), "well below 1"),
+        ("pressed on the face 3 mm beside the opening, over hovering 4 mm above it 4 mm off (below 1: touching down "
+         "off the axis loses reward)", _f(q.get("face_over_hover")), ""),
         ("examination success rates", ", ".join(f"{k} {v:.0%}" for k, v in rates.items()), ""),
         ("Spearman with the task's `normalized_dense`, all rollouts / expert rollouts",
          f"{_f(q.get('spearman_with_normalized_dense'))} / {_f(q.get('spearman_with_normalized_dense_expert'))}", ""),

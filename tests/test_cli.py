@@ -57,6 +57,7 @@ def test_chain_record_sample_train_examine(tmp_path):
     assert quality["side_pushed_over_inserted"] == pytest.approx(held[SIDE_PUSHED]["mean"] / held["inserted"]["mean"])
     assert 8.0 < held[FACE_PUSHED]["reached_error_mm"] < 11.0  # on the face, 8 mm above its target and slid out
     assert quality["face_pushed_over_inserted"] == pytest.approx(held[FACE_PUSHED]["mean"] / held["inserted"]["mean"])
+    assert quality["face_over_hover"] == pytest.approx(held["pressed 3 mm beside"]["mean"] / held["4 mm above, 4 mm off"]["mean"])
     assert quality["colour_spread"]["max_std"] == max(v["std"] for k, v in held.items() if k != "inserted")
     assert {"episodes", "mean_reward", "direct_success_final", "fraction"} <= set(quality["contact_plateau"])
     assert set(quality["contact_plateau"]) - {"episodes", "mean_reward", "direct_success_final", "fraction"} <= {"on_face", "at_opening"}

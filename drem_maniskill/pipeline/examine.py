@@ -279,11 +279,14 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
     return out
 
 
-def _over_inserted(held: dict, position: str) -> float | None:
-    """A held position's mean reward over the finished insertion's (None where either is missing)."""
-    if position not in held or not held.get("inserted", {}).get("mean"):
+def _over_inserted(held: dict, position: str, base: str = "inserted") -> float | None:
+    """A held position's mean reward over the finished insertion's, or ``base``'s (None where either is missing)."""
+    if position not in held or not held.get(base, {}).get("mean"):
         return None
-    return held[position]["mean"] / held["inserted"]["mean"]
+    return held[position]["mean"] / held[base]["mean"]
+
+
+FACE_OVER_HOVER = ("pressed 3 mm beside", "4 mm above, 4 mm off")
 
 
 def contact_loss_drop(episode: dict, contact: float = 3.0) -> tuple[float, float] | None:
@@ -351,6 +354,9 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         side_over_inserted=_over_inserted(held, SIDE_POSITION),
         side_pushed_over_inserted=_over_inserted(held, SIDE_PUSHED),
         face_pushed_over_inserted=_over_inserted(held, FACE_PUSHED),
+        # Touching the face beside the opening over hovering above it as far off: below 1, a descent that misses the
+        # opening by more than its clearance loses reward (the valley SAC stopped above on the side + push USB reward).
+        face_over_hover=_over_inserted(held, *FACE_OVER_HOVER),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],
