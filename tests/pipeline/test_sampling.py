@@ -80,6 +80,15 @@ def _interrupt_then_resume(expert: str, out, config: SamplerConfig, monkeypatch,
     return calls
 
 
+def _finished_tree_to_grow(expert: str, out, config: SamplerConfig) -> int:
+    """Sample a complete tree at ``out`` and leave it as ``out``'s partial file, as a run growing it finds it; its node count."""
+    backward_sample(expert, str(out), config, progress=False)
+    with h5py.File(out, "r") as f:
+        n = len(f["depth"])
+    out.rename(out.with_name(out.name + ".partial"))
+    return n
+
+
 @pytest.mark.slow
 def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path, monkeypatch):
     out = tmp_path / "tree.h5"
@@ -304,10 +313,7 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
 
     base = dict(face_depth=2, face_lineages=4, face_children=6, side_depth=1, side_children=6)
     grown = tmp_path / "tree.h5"
-    backward_sample(pipeline["expert"], str(grown), SamplerConfig.preset("tiny", **base), progress=False)
-    with h5py.File(grown, "r") as f:
-        n = len(f["depth"])
-    grown.rename(grown.with_name(grown.name + ".partial"))
+    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
     config = SamplerConfig.preset("tiny", **base, push_children=5)
     assert push_groups(config) == ["face_1", "face_2", "side_1"]
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
@@ -335,10 +341,7 @@ def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_i
     # barely reach the floor 5 mm below it, and the presses' sideways and twisting actions stay as small.
     base = dict(expert_step_scale=1.0, max_depth=80)
     grown = tmp_path / "tree.h5"
-    backward_sample(pipeline["expert"], str(grown), SamplerConfig.preset("tiny", **base), progress=False)
-    with h5py.File(grown, "r") as f:
-        n = len(f["depth"])
-    grown.rename(grown.with_name(grown.name + ".partial"))
+    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
     config = SamplerConfig.preset("tiny", **base, goal_presses=8)
     calls = _count_depths(monkeypatch)
     backward_sample(pipeline["expert"], str(grown), config, progress=False)
