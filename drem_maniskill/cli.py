@@ -197,8 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="full-range random actions from every face and side seed, labelled one past it: hard presses "
                         "away from the goal (not in the paper; needs --face-depth; default 0: off)")
     p.add_argument("--goal-presses", type=int,
-                   help="full-range random actions pushing down from the goal, labelled depth 1: the inserted part "
-                        "pressed on the opening's floor (not in the paper; default 0: off)")
+                   help="random actions from the goal pushing down over the whole range (sideways and twisting within the "
+                        "goal's own range), labelled depth 1: the inserted part pressed on the opening's floor (not in "
+                        "the paper; default 0: off)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")
