@@ -279,7 +279,7 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
     return out
 
 
-def _over_inserted(held: dict, position: str, base: str = "inserted") -> float | None:
+def _held_ratio(held: dict, position: str, base: str = "inserted") -> float | None:
     """A held position's mean reward over the finished insertion's, or ``base``'s (None where either is missing)."""
     if position not in held or not held.get(base, {}).get("mean"):
         return None
@@ -348,15 +348,15 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         held_positions={k: {m: v[m] for m in ("mean", "std", "reached_error_mm")} for k, v in held.items()},
         inserted_reward_std=held["inserted"]["std"] if held else None,
         # What a policy gains by pressing the part on the floor instead of inserting it (the trap SAC found).
-        floor_beside_over_inserted=_over_inserted(held, FLOOR_POSITION),
+        floor_beside_over_inserted=_held_ratio(held, FLOOR_POSITION),
         # The same for the part lowered beside the block's side, and pushed into it and down (the trap SAC
         # found on the --descend-from USB reward), and pushed down on the face.
-        side_over_inserted=_over_inserted(held, SIDE_POSITION),
-        side_pushed_over_inserted=_over_inserted(held, SIDE_PUSHED),
-        face_pushed_over_inserted=_over_inserted(held, FACE_PUSHED),
+        side_over_inserted=_held_ratio(held, SIDE_POSITION),
+        side_pushed_over_inserted=_held_ratio(held, SIDE_PUSHED),
+        face_pushed_over_inserted=_held_ratio(held, FACE_PUSHED),
         # Touching the face beside the opening over hovering above it as far off: below 1, a descent that misses the
         # opening by more than its clearance loses reward (the valley SAC stopped above on the side + push USB reward).
-        face_over_hover=_over_inserted(held, *FACE_OVER_HOVER),
+        face_over_hover=_held_ratio(held, *FACE_OVER_HOVER),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],

@@ -538,6 +538,12 @@ def _children_of(sampler: "ChildSampler", pool, config: SamplerConfig, seeds: li
     return {k: np.concatenate([c[k] for c in children]) for k in children[0]}
 
 
+def _read_seeds(group) -> tuple[list, list]:
+    """The seeds of an open ``seeds/<name>`` HDF5 group, as the samplers take them, and their node indices."""
+    seeds = [dict(state=s, in_start_region=r) for s, r in zip(group["state"][()], group["in_start_region"][()])]
+    return seeds, [int(n) for n in group["node"][()]]
+
+
 def _start_depth(path: Path) -> Optional[int]:
     """The depth at which the backward phase reached the start region, once it has (else None)."""
     with h5py.File(path, "r") as f:
@@ -634,14 +640,12 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
         if side and int(f.attrs.get("face_completed", 0)) < config.face_depth:
             raise ValueError(f"{partial}: the side phase starts where the face phase ended, which is not complete")
         done = int(f.attrs.get(f"{name}_completed", 0))
-        g = f[f"seeds/{first}"] if done == 0 else f[f"seeds/{name}_{done}"]
-        states, flags, nodes = g["state"][()], g["in_start_region"][()], [int(n) for n in g["node"][()]]
+        seeds, nodes = _read_seeds(f[f"seeds/{first}"] if done == 0 else f[f"seeds/{name}_{done}"])
         entry_node = int(f[f"seeds/depth_{entry}/node"][0])
         origin = f["tcp_pose"][entry_node][:3].astype(np.float64)
         upright = f["tcp_pose"][entry_node][3:7].astype(np.float64)
     if done == 0 and not side:
-        states, flags, nodes = [states[0]] * lineages, [flags[0]] * lineages, [nodes[0]] * lineages
-    seeds = [dict(state=s, in_start_region=r) for s, r in zip(states, flags)]
+        seeds, nodes = seeds[:1] * lineages, nodes[:1] * lineages
     scale = float(np.clip(step / sampler.translation_limit, config.min_action_scale, config.action_scale))
     bar = tqdm(total=total, initial=done, desc=f"{name} sampling", unit="depth", disable=not progress)
     for k in range(done, total):
@@ -676,10 +680,8 @@ def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     bar = tqdm(total=len(groups), initial=done, desc="push sampling", unit="group", disable=not progress)
     for i in range(done, len(groups)):
         with h5py.File(partial, "r") as f:
-            g = f[f"seeds/{groups[i]}"]
-            states, flags, nodes = g["state"][()], g["in_start_region"][()], [int(n) for n in g["node"][()]]
+            seeds, nodes = _read_seeds(f[f"seeds/{groups[i]}"])
             depth = int(f["depth"][nodes[0]])
-        seeds = [dict(state=s, in_start_region=r) for s, r in zip(states, flags)]
         merged = _children_of(sampler, pool, config, seeds, nodes, depth, config.push_children, config.action_scale, stream=6)
         _append_depth(partial, merged, depth + 1, np.zeros(0, np.int64), group=f"push_{i + 1}",
                       counter="push_completed", count=i + 1)
@@ -698,9 +700,7 @@ def _sample_goal_presses(partial: Path, sampler: "ChildSampler", pool, config: S
     with h5py.File(partial, "r") as f:
         if int(f.attrs.get("goal_press_completed", 0)):
             return
-        g = f["seeds/depth_0"]
-        seeds = [dict(state=s, in_start_region=r) for s, r in zip(g["state"][()], g["in_start_region"][()])]
-        nodes = [int(n) for n in g["node"][()]]
+        seeds, nodes = _read_seeds(f["seeds/depth_0"])
     merged = _children_of(sampler, pool, config, seeds, nodes, 0, config.goal_presses, scale, stream=7, down=True)
     _append_depth(partial, merged, 1, np.zeros(0, np.int64), group="goal_press", counter="goal_press_completed", count=1)
 
@@ -734,9 +734,7 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
             with h5py.File(partial, "r") as f:
                 if _resumable(json.loads(f.attrs["header"]), json.loads(json.dumps(header))):
                     depth = int(f.attrs["completed_depth"])
-                    g = f[f"seeds/depth_{depth}"]
-                    seeds = [dict(state=s, in_start_region=r) for s, r in zip(g["state"][()], g["in_start_region"][()])]
-                    resumed = depth, seeds, [int(n) for n in g["node"][()]]
+                    resumed = (depth, *_read_seeds(f[f"seeds/depth_{depth}"]))
         except (OSError, KeyError):
             pass  # unreadable: start over
         if resumed is not None:
