@@ -106,7 +106,15 @@ class TreeDataset:
 # Regions of the tip around the opening (socket frame, metres), for ``tree_report``.
 NEAR_HEIGHT = 0.006  # above the opening: the expert's pre-insertion height
 CENTRED = 0.002  # off the axis: "a millimetre or two"
-BESIDE = 0.01  # below the top face this far off the axis: not in the opening but beside the socket
+INSERTED_HEIGHT = -0.001  # m: a tip lower than this below the top face is in the opening or beside the socket
+OPENING_RADIUS = 0.01  # m off the axis: lower than INSERTED_HEIGHT and this close, the tip is in the opening
+# (both tasks' blocks are solid farther out: the USB port's housing reaches 8.75 mm, the plug's shell 2.25 mm more)
+
+
+def in_opening(tip: np.ndarray) -> np.ndarray:
+    """Rows of ``tip_in_socket`` ``[n, 3]`` whose tip is in the opening: below ``INSERTED_HEIGHT``, within ``OPENING_RADIUS``."""
+    tip = np.asarray(tip)
+    return (tip[:, 2] < INSERTED_HEIGHT) & (np.linalg.norm(tip[:, :2], axis=1) <= OPENING_RADIUS)
 
 
 def tree_report(path: str, contact_force: float = 3.0) -> dict:
@@ -119,6 +127,8 @@ def tree_report(path: str, contact_force: float = 3.0) -> dict:
     ``in contact, not inserted`` (wrist force over ``contact_force`` with the tip not below 1 mm:
     pressed on the face or the rim), ``far`` (the rest). A tree resolves progress near the
     opening when these hold nodes at depths that grow with their distance from the goal.
+    ``inserted["past_entry"]`` counts inserted nodes labelled deeper than the ``entry_depth``: states in the
+    opening that the reward is taught are farther from the goal than the part's way in.
     """
     with h5py.File(path, "r") as f:
         if "tip_in_socket" not in f:
@@ -126,8 +136,9 @@ def tree_report(path: str, contact_force: float = 3.0) -> dict:
         tip, depth = f["tip_in_socket"][()], f["depth"][()]
         force = np.abs(f["ft"][:, -1, 2])
     radial, z = np.linalg.norm(tip[:, :2], axis=1), tip[:, 2]
-    below = z < -0.001
-    inserted, beside = below & (radial <= BESIDE), below & (radial > BESIDE)
+    below = z < INSERTED_HEIGHT
+    inserted = in_opening(tip)
+    beside = below & ~inserted
     contact = (force > contact_force) & ~below
     near = (z >= 0) & (z <= NEAR_HEIGHT)
     regions = {
@@ -143,5 +154,20 @@ def tree_report(path: str, contact_force: float = 3.0) -> dict:
         d = depth[mask]
         out[name] = dict(nodes=int(mask.sum()), depth_mean=float(d.mean()) if len(d) else None,
                          depth_min=int(d.min()) if len(d) else None, depth_max=int(d.max()) if len(d) else None)
+    entry = _entry_depth(path)
+    if entry is not None:
+        # Labelled farther from the goal than the part's entry into the opening, yet in it: the backward phase's
+        # own noise (children of the entry seed that went in), plus any lineage child kept in the opening.
+        out["inserted"]["past_entry"] = int((inserted & (depth > entry)).sum())
+        out["entry_depth"] = entry
     out["tree_depth"] = int(depth.max())
     return out
+
+
+def _entry_depth(path: str):
+    """The tree's entry depth (``sampling.face_entry_depth``), or None for a tree that has not reached the start region."""
+    from drem_maniskill.pipeline.sampling import face_entry_depth
+
+    with h5py.File(path, "r") as f:
+        start = f.attrs.get("start_depth")
+    return None if start is None else face_entry_depth(path, int(start))

@@ -41,6 +41,7 @@ from tqdm import tqdm
 
 from drem_maniskill.envs import check_env_id
 from drem_maniskill.envs.adapter import adapter_for
+from drem_maniskill.pipeline.dataset import in_opening
 from drem_maniskill.utils.cameras import camera_roles
 from drem_maniskill.utils.state import broadcast_state, first_leaf, state_at
 
@@ -129,7 +130,8 @@ class SamplerConfig:
     read under 20 N at the wrist), so the only hard presses in a tree were the goal's children pushing on the
     opening's floor, and a reward trained on it paid a part pushed hard on the face or against the block's side
     like an insertion (docs/drem.md, "The side phase"). These children push the part into the face, the edge and
-    the side with tens of newtons, labelled where they are: as far from the goal as the seed they left, plus one."""
+    the side with tens of newtons, labelled where they are: as far from the goal as the seed they left, plus one.
+    Those that fall into the opening are not kept: they may be a step from the goal."""
     goal_presses: int = 0
     """Random actions from the goal state pushing down over the whole range (not in the paper; 0: off),
     labelled depth 1 and never seeds. A demo that descends slowly ends as soon as the part is far enough in, before
@@ -166,7 +168,8 @@ def face_directions(config: SamplerConfig, elevation_deg: Optional[float] = None
 
 
 FACE_ENTRY_HEIGHT = -0.001  # m: a seed's tip above this (socket frame) is out of the opening, not inserted
-FACE_SEED_HEIGHT = -0.0005  # m: a face seed's tip is above this, on or over the face, not caught in the opening's mouth
+FACE_SEED_HEIGHT = -0.0002  # m: a face seed's tip is above this, on or over the face, not caught in the opening's mouth
+# (a lineage from the USB entry seed stayed 0.4-0.5 mm in the mouth for all 8 face steps with -0.5 mm; stop 23)
 
 
 class NoStartRegionError(RuntimeError):
@@ -613,6 +616,33 @@ def _rotation_from(q: np.ndarray, q0: np.ndarray) -> np.ndarray:
     return 2 * np.arccos(np.clip(np.abs(q @ q0), 0.0, 1.0))
 
 
+def _caught_penalty(tip: np.ndarray, side: bool) -> np.ndarray:
+    """Metres off each lineage child's score: 1 plus 100 times how far in it is for a child caught in the opening, else 0.
+
+    Face phase: caught below ``FACE_SEED_HEIGHT`` (in the opening's mouth); side phase: in the opening (``in_opening``).
+    Never chosen while a child of its lineage is free, and a lineage whose children are all caught keeps the least
+    deep, so it climbs out instead of staying in the mouth labelled as the face (stop 23: one of 8 USB lineages did).
+    """
+    if side:
+        caught, depth = in_opening(tip), -tip[:, 2]
+    else:
+        caught, depth = tip[:, 2] < FACE_SEED_HEIGHT, FACE_SEED_HEIGHT - tip[:, 2]
+    return np.where(caught, 1.0 + 100.0 * depth, 0.0)  # a millimetre deeper outweighs any lineage step
+
+
+def _out_of_opening(merged: dict, chosen: np.ndarray) -> tuple:
+    """``merged`` without the children in the opening (``in_opening``) other than ``chosen``; the chosen rows' new
+    indices; how many were dropped.
+
+    A lineage's or push child that went into the opening is labelled by where it started (the face or the side),
+    while it may be a step from the goal: kept, it would teach the reward that the inside of the opening is far
+    (stop 23: 882 such nodes of stop 22's side and push phases, labelled up to 29 where the entry is 12).
+    """
+    keep = ~in_opening(merged["tip_in_socket"])
+    keep[chosen] = True
+    return {k: v[keep] for k, v in merged.items()}, np.cumsum(keep)[chosen] - 1, int((~keep).sum())
+
+
 def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, start_depth: int,
                  progress: bool, side: bool = False) -> None:
     """The face phase (``SamplerConfig.face_depth``): lineages that slide the part over the face from the opening.
@@ -620,7 +650,9 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     Lineage ``l``'s seed at face step ``k`` is labelled ``entry + k``: ``k`` small moves from the seed
     at the opening, which is ``entry`` from the goal. The child kept is the one farthest along the
     lineage's direction, less ``rotation_weight`` metres per radian it turned, so the part stays upright,
-    and out of the opening (a child that went in is near the goal and stays a plain node).
+    and out of the opening's mouth (``_caught_penalty``). Children that went into the opening are near the
+    goal, not where their lineage is: they are not kept (``_out_of_opening``; counted in the group's
+    ``dropped_in_opening``).
 
     ``side``: the side phase (``SamplerConfig.side_depth``), the same lineages going on from their last
     face seeds along ``side_elevation`` (over the edge and down beside the block), step ``k`` labelled
@@ -651,11 +683,11 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     for k in range(done, total):
         merged = _children_of(sampler, pool, config, seeds, nodes, label0 + k, children, scale, stream=5 if side else 4)
         penalty = config.rotation_weight * _rotation_from(merged["ee"][:, 3:7].astype(np.float64), upright)
-        if not side:  # a child that went down into the opening is near the goal, not on the face: never a face seed
-            penalty[merged["tip_in_socket"][:, 2] < FACE_SEED_HEIGHT] = np.inf
+        penalty += _caught_penalty(merged["tip_in_socket"].astype(np.float64), side)
         chosen = _farthest_along(merged["ee"], origin, directions, penalty)
+        merged, chosen, dropped = _out_of_opening(merged, chosen)
         nodes = _append_depth(partial, merged, label0 + k + 1, chosen, group=f"{name}_{k + 1}",
-                              counter=f"{name}_completed", count=k + 1)
+                              counter=f"{name}_completed", count=k + 1, attrs={"dropped_in_opening": dropped})
         seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
         bar.update(1)
     bar.close()
@@ -683,8 +715,9 @@ def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
             seeds, nodes = _read_seeds(f[f"seeds/{groups[i]}"])
             depth = int(f["depth"][nodes[0]])
         merged = _children_of(sampler, pool, config, seeds, nodes, depth, config.push_children, config.action_scale, stream=6)
+        merged, _, dropped = _out_of_opening(merged, np.zeros(0, np.int64))
         _append_depth(partial, merged, depth + 1, np.zeros(0, np.int64), group=f"push_{i + 1}",
-                      counter="push_completed", count=i + 1)
+                      counter="push_completed", count=i + 1, attrs={"dropped_in_opening": dropped})
         bar.update(1)
     bar.close()
 
@@ -777,8 +810,10 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
 
 
 def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray, group: Optional[str] = None,
-                  counter: str = "completed_depth", count: Optional[int] = None) -> list:
+                  counter: str = "completed_depth", count: Optional[int] = None, attrs: Optional[dict] = None) -> list:
     """Append one depth's nodes and its chosen seeds in one go; returns the seeds' node indices.
+
+    ``attrs`` go on the seeds' group (e.g. how many children were dropped).
 
     The seeds go to ``seeds/<group>`` (default ``depth_<depth>``). ``counter`` (``completed_depth``;
     the face phase keeps its own) and ``node_count`` are written last, so a run interrupted half-way
@@ -812,6 +847,7 @@ def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray, group:
         g.create_dataset("state", data=data["state"][chosen])
         g.create_dataset("in_start_region", data=data["in_start_region"][chosen].astype(bool))
         g.create_dataset("node", data=np.array(nodes, np.int64))
+        g.attrs.update(attrs or {})
         f.attrs["node_count"] = first + n
         f.attrs[counter] = depth if count is None else count
     return nodes

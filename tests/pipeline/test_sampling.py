@@ -24,6 +24,7 @@ from drem_maniskill.pipeline.sampling import (
     outward_directions,
 )
 from drem_maniskill.pipeline import sampling
+from drem_maniskill.pipeline.dataset import in_opening
 
 
 @pytest.mark.slow
@@ -241,6 +242,32 @@ def test_actions_follow_the_experts_step_when_asked():
     assert action_scale_at(0, ee, SamplerConfig(action_scale=0.7), 0.02) == 0.7  # off: the fixed range
 
 
+def test_lineages_never_keep_a_child_caught_in_the_opening_and_do_not_keep_the_children_that_went_in():
+    """A face lineage takes a child on the face over a farther one caught in the opening's mouth, or, all caught,
+    the least deep; a side lineage takes one beside the block over one in the opening; children in the opening are
+    not kept (they are labelled by their lineage, and may be a step from the goal)."""
+    from drem_maniskill.pipeline.dataset import in_opening
+    from drem_maniskill.pipeline.sampling import _caught_penalty, _farthest_along, _out_of_opening
+
+    directions = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    ee, tip = np.zeros((6, 3)), np.zeros((6, 3))  # 2 lineages x 3 children; metres, tips in the socket frame
+    ee[:3, 0], tip[:3] = [0.003, 0.001, 0.004], [[0.0005, 0, -0.0004], [0.0015, 0, 0.0001], [0.0003, 0, -0.005]]
+    ee[3:, 1], tip[3:, 2] = [0.003, 0.002, 0.001], [-0.0006, -0.0003, -0.002]  # all three in the mouth
+    chosen = _farthest_along(ee, np.zeros(3), directions, _caught_penalty(tip, side=False))
+    assert list(chosen) == [1, 4]  # on the face, not 2 mm farther in the mouth; the least deep of the caught
+    assert list(_farthest_along(ee, np.zeros(3), directions)) == [2, 3]  # what the distance alone would take
+    kept, new, dropped = _out_of_opening(dict(tip_in_socket=tip, ee=ee, parent=np.arange(6)), chosen)
+    assert list(in_opening(tip)) == [False, False, True, False, False, True] and dropped == 2
+    assert list(kept["parent"]) == [0, 1, 3, 4] and list(kept["parent"][new]) == [1, 4]
+    assert not in_opening(kept["tip_in_socket"]).any()
+    # Side phase: down the block's side (2 cm off the axis, 10 mm down) is where it should go; 5 mm down the opening is not.
+    side_tip = np.array([[0.002, 0, -0.005], [0.02, 0, -0.01], [0.0, 0, 0.001], [0, 0.012, -0.002], [0, 0.003, -0.004], [0, 0, 0]])
+    side_ee = np.array([[0.005, 0, 0], [0.004, 0, 0], [0.0, 0, 0], [0, 0.002, 0], [0, 0.006, 0], [0, 0, 0]])
+    assert list(_farthest_along(side_ee, np.zeros(3), directions, _caught_penalty(side_tip, side=True))) == [1, 3]
+    _, _, dropped = _out_of_opening(dict(tip_in_socket=side_tip), np.zeros(0, np.int64))
+    assert dropped == 2
+
+
 @pytest.mark.slow
 def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(pipeline, tmp_path, monkeypatch):
     """Each face lineage moves out of the opening along its direction, one depth per step, and resumes."""
@@ -253,20 +280,22 @@ def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(
         n = len(ref["depth"])
         np.testing.assert_allclose(f["tcp_pose"][:n], ref["tcp_pose"][()], atol=1e-4)
         entry = face_entry_depth(out, int(f.attrs["start_depth"]))
-        assert int(f.attrs["face_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 6
+        dropped = [int(f[f"seeds/face_{k}"].attrs["dropped_in_opening"]) for k in range(1, 4)]
+        assert int(f.attrs["face_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 6 - sum(dropped)
         depth, parent, tip, tcp = f["depth"][n:], f["parent"][n:], f["tip_in_socket"][()], f["tcp_pose"][()]
+        assert not in_opening(tip[n:]).any()  # the children that went in are not kept
         # Face step k's nodes are k small moves from the seed at the opening, which is `entry` from the goal.
-        assert np.array_equal(depth, np.repeat(entry + np.arange(1, 4), 4 * 6))
+        assert np.array_equal(depth, np.repeat(entry + np.arange(1, 4), [24 - d for d in dropped]))
         entry_node = int(f["seeds/depth_%d/node" % entry][0])
-        assert np.all(parent[:24] == entry_node)
+        assert np.all(parent[: 24 - dropped[0]] == entry_node)
         assert tip[entry_node, 2] > FACE_ENTRY_HEIGHT >= tip[int(f["seeds/depth_%d/node" % (entry - 1)][0]), 2]
         along = []
         for k in range(1, 4):
             seeds = f[f"seeds/face_{k}/node"][()]
             assert len(seeds) == 4 and np.all(tip[seeds, 2] > FACE_SEED_HEIGHT)  # out of the opening
             if k > 1:  # each lineage's children hang under its own previous seed
-                kids = n + 24 * (k - 1) + np.arange(24).reshape(4, 6)
-                assert np.all(f["parent"][()][kids] == f[f"seeds/face_{k - 1}/node"][()][:, None])
+                kids = n + sum(24 - d for d in dropped[: k - 1]) + np.arange(24 - dropped[k - 1])
+                assert set(f["parent"][()][kids]) <= set(f[f"seeds/face_{k - 1}/node"][()])
             flat = face_directions(config)[:, :2]
             along.append(np.einsum("lx,lx->l", tcp[seeds, :2] - tcp[entry_node, :2], flat / np.linalg.norm(flat, axis=1, keepdims=True)))
         along = np.array(along)
@@ -293,11 +322,13 @@ def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_th
         n = len(ref["depth"])
         np.testing.assert_array_equal(f["depth"][:n], ref["depth"][()])
         entry = face_entry_depth(grown, int(f.attrs["start_depth"]))
-        assert int(f.attrs["side_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 6
+        dropped = [int(f[f"seeds/side_{k}"].attrs["dropped_in_opening"]) for k in range(1, 4)]
+        assert int(f.attrs["side_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 6 - sum(dropped)
+        assert not in_opening(f["tip_in_socket"][n:]).any()
         # Side step k's nodes are labelled past the face phase's last: entry + face_depth + k.
-        assert np.array_equal(f["depth"][n:], np.repeat(entry + 2 + np.arange(1, 4), 4 * 6))
+        assert np.array_equal(f["depth"][n:], np.repeat(entry + 2 + np.arange(1, 4), [24 - d for d in dropped]))
         parent, tcp = f["parent"][()], f["tcp_pose"][()]
-        assert np.all(parent[n : n + 24].reshape(4, 6) == f["seeds/face_2/node"][()][:, None])  # from each face lineage's end
+        assert set(parent[n : n + 24 - dropped[0]]) <= set(f["seeds/face_2/node"][()])  # from the face lineages' ends
         directions = face_directions(side, side.side_elevation)
         assert np.all(directions[:, 2] < -0.8)  # steeply down
         origin = tcp[int(f["seeds/depth_%d/node" % entry][0]), :3]
@@ -320,11 +351,14 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
                                    lambda path, depth, chosen, kw: kw.get("group") == "push_2")
     assert calls == ["push_2", "push_3"]
     with h5py.File(grown, "r") as f:
-        assert int(f.attrs["push_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 5
+        dropped = sum(int(f[f"seeds/push_{i}"].attrs["dropped_in_opening"]) for i in range(1, 4))
+        assert int(f.attrs["push_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 5 - dropped
         depth, parent, tcp = f["depth"][()], f["parent"][()], f["tcp_pose"][()]
         kids = np.arange(n, len(depth))
+        assert not in_opening(f["tip_in_socket"][n:]).any()
         seeds = np.concatenate([f[f"seeds/{g}/node"][()] for g in push_groups(config)])
-        assert np.array_equal(parent[kids], np.repeat(seeds, 5))  # five from each seed, in group order
+        assert np.all(np.isin(parent[kids], seeds)) and np.all(np.diff(parent[kids]) >= 0)  # from the seeds, in group order
+        assert np.array_equal(np.unique(parent[kids]), np.unique(seeds)) or dropped > 0
         assert np.array_equal(depth[kids], depth[parent[kids]] + 1) and not f["is_seed"][()][kids].any()
         moved = np.linalg.norm(tcp[kids, :3] - tcp[parent[kids], :3], axis=1)
         lineage = np.arange(n - 4 * 6, n)  # the side phase's children: 4 mm actions
