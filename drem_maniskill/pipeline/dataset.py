@@ -106,7 +106,8 @@ class TreeDataset:
 # Regions of the tip around the opening (socket frame, metres), for ``tree_report``.
 NEAR_HEIGHT = 0.006  # above the opening: the expert's pre-insertion height
 CENTRED = 0.002  # off the axis: "a millimetre or two"
-INSERTED_HEIGHT = -0.001  # m: a tip lower than this below the top face is in the opening or beside the socket
+INSERTED_HEIGHT = -0.001  # m: a tip lower than this below the top face is in the opening or beside the socket;
+# a backward seed's tip above it is out of the opening (``face_entry_depth``)
 OPENING_RADIUS = 0.01  # m off the axis: lower than INSERTED_HEIGHT and this close, the tip is in the opening
 # (both tasks' blocks are solid farther out: the USB port's housing reaches 8.75 mm, the plug's shell 2.25 mm more)
 
@@ -165,9 +166,20 @@ def tree_report(path: str, contact_force: float = 3.0) -> dict:
 
 
 def _entry_depth(path: str):
-    """The tree's entry depth (``sampling.face_entry_depth``), or None for a tree that has not reached the start region."""
-    from drem_maniskill.pipeline.sampling import face_entry_depth
-
+    """The tree's entry depth (``face_entry_depth``), or None for a tree that has not reached the start region."""
     with h5py.File(path, "r") as f:
         start = f.attrs.get("start_depth")
     return None if start is None else face_entry_depth(path, int(start))
+
+
+def face_entry_depth(path, start_depth: int) -> int:
+    """The first backward depth whose seed's tip is out of the opening (``INSERTED_HEIGHT``): where the part enters."""
+    with h5py.File(path, "r") as f:
+        if "tip_in_socket" not in f:
+            raise ValueError(f"{path} holds no tip_in_socket: the face phase (--face-depth) needs one of our insertion tasks")
+        for depth in range(start_depth + 1):
+            node = int(f[f"seeds/depth_{depth}/node"][0])
+            if f["tip_in_socket"][node][2] > INSERTED_HEIGHT:
+                return depth
+    raise ValueError(f"no seed of {path} up to the start region is out of the opening; is the expert's goal inserted?")
+

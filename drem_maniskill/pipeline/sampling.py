@@ -41,7 +41,7 @@ from tqdm import tqdm
 
 from drem_maniskill.envs import check_env_id
 from drem_maniskill.envs.adapter import adapter_for
-from drem_maniskill.pipeline.dataset import in_opening
+from drem_maniskill.pipeline.dataset import face_entry_depth, in_opening
 from drem_maniskill.utils.cameras import camera_roles
 from drem_maniskill.utils.state import broadcast_state, first_leaf, state_at
 
@@ -167,7 +167,6 @@ def face_directions(config: SamplerConfig, elevation_deg: Optional[float] = None
                      np.full(config.face_lineages, np.sin(elevation))], -1)
 
 
-FACE_ENTRY_HEIGHT = -0.001  # m: a seed's tip above this (socket frame) is out of the opening, not inserted
 FACE_SEED_HEIGHT = -0.0002  # m: a face seed's tip is above this, on or over the face, not caught in the opening's mouth
 # (a lineage from the USB entry seed stayed 0.4-0.5 mm in the mouth for all 8 face steps with -0.5 mm; stop 23)
 
@@ -597,18 +596,6 @@ def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: Sample
         bar.update(1)
     bar.close()
     return depth, seeds
-
-
-def face_entry_depth(path, start_depth: int) -> int:
-    """The first backward depth whose seed's tip is out of the opening (``FACE_ENTRY_HEIGHT``): where the part enters."""
-    with h5py.File(path, "r") as f:
-        if "tip_in_socket" not in f:
-            raise ValueError(f"{path} holds no tip_in_socket: the face phase (--face-depth) needs one of our insertion tasks")
-        for depth in range(start_depth + 1):
-            node = int(f[f"seeds/depth_{depth}/node"][0])
-            if f["tip_in_socket"][node][2] > FACE_ENTRY_HEIGHT:
-                return depth
-    raise ValueError(f"no seed of {path} up to the start region is out of the opening; is the expert's goal inserted?")
 
 
 def _rotation_from(q: np.ndarray, q0: np.ndarray) -> np.ndarray:

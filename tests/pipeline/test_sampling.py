@@ -13,18 +13,17 @@ from drem_maniskill.envs import TASKS, PegInHoleEnv
 from drem_maniskill.experts.scripted import HoldPolicy
 from drem_maniskill.pipeline.examine import HOLD_POSITIONS
 from drem_maniskill.pipeline.sampling import (
-    FACE_ENTRY_HEIGHT,
     FACE_SEED_HEIGHT,
     ChildSampler,
     NoStartRegionError,
     SamplerConfig,
     backward_sample,
     face_directions,
-    face_entry_depth,
     outward_directions,
 )
 from drem_maniskill.pipeline import sampling
-from drem_maniskill.pipeline.dataset import in_opening
+from drem_maniskill.pipeline.dataset import INSERTED_HEIGHT as FACE_ENTRY_HEIGHT
+from drem_maniskill.pipeline.dataset import face_entry_depth, in_opening
 
 
 @pytest.mark.slow
@@ -246,7 +245,6 @@ def test_lineages_never_keep_a_child_caught_in_the_opening_and_do_not_keep_the_c
     """A face lineage takes a child on the face over a farther one caught in the opening's mouth, or, all caught,
     the least deep; a side lineage takes one beside the block over one in the opening; children in the opening are
     not kept (they are labelled by their lineage, and may be a step from the goal)."""
-    from drem_maniskill.pipeline.dataset import in_opening
     from drem_maniskill.pipeline.sampling import _caught_penalty, _farthest_along, _out_of_opening
 
     directions = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
