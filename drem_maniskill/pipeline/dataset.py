@@ -136,6 +136,7 @@ def tree_report(path: str, contact_force: float = 3.0) -> dict:
             return {}
         tip, depth = f["tip_in_socket"][()], f["depth"][()]
         force = np.abs(f["ft"][:, -1, 2])
+        start = f.attrs.get("start_depth")  # None until the backward phase reached the start region
     radial, z = np.linalg.norm(tip[:, :2], axis=1), tip[:, 2]
     below = z < INSERTED_HEIGHT
     inserted = in_opening(tip)
@@ -155,21 +156,14 @@ def tree_report(path: str, contact_force: float = 3.0) -> dict:
         d = depth[mask]
         out[name] = dict(nodes=int(mask.sum()), depth_mean=float(d.mean()) if len(d) else None,
                          depth_min=int(d.min()) if len(d) else None, depth_max=int(d.max()) if len(d) else None)
-    entry = _entry_depth(path)
-    if entry is not None:
+    if start is not None:
+        entry = face_entry_depth(path, int(start))
         # Labelled farther from the goal than the part's entry into the opening, yet in it: the backward phase's
         # own noise (children of the entry seed that went in), plus any lineage child kept in the opening.
         out["inserted"]["past_entry"] = int((inserted & (depth > entry)).sum())
         out["entry_depth"] = entry
     out["tree_depth"] = int(depth.max())
     return out
-
-
-def _entry_depth(path: str):
-    """The tree's entry depth (``face_entry_depth``), or None for a tree that has not reached the start region."""
-    with h5py.File(path, "r") as f:
-        start = f.attrs.get("start_depth")
-    return None if start is None else face_entry_depth(path, int(start))
 
 
 def face_entry_depth(path, start_depth: int) -> int:
@@ -182,4 +176,3 @@ def face_entry_depth(path, start_depth: int) -> int:
             if f["tip_in_socket"][node][2] > INSERTED_HEIGHT:
                 return depth
     raise ValueError(f"no seed of {path} up to the start region is out of the opening; is the expert's goal inserted?")
-
