@@ -411,7 +411,8 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         """Bool ``[num_envs]``: the part tip is more than ``start_region_height`` above the socket."""
         return self.tip_pose_in_socket().p[:, 2] > self.start_region_height
 
-    def _orientation_errors(self, rel: Pose):
+    def orientation_errors(self, rel: Pose):
+        """Tilt and absolute yaw error ``[B]`` (rad) of a part pose in the socket frame, as the success test reads them."""
         rot = quaternion_to_matrix(rel.q)
         tilt = torch.arccos(rot[:, 2, 2].clamp(-1, 1))
         yaw = torch.atan2(rot[:, 1, 0], rot[:, 0, 0])
@@ -426,7 +427,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         rel = self.tip_pose_in_socket()
         depth = -rel.p[:, 2]
         radial = torch.linalg.norm(rel.p[:, :2], dim=1)
-        tilt, yaw_err = self._orientation_errors(rel)
+        tilt, yaw_err = self.orientation_errors(rel)
         in_bore = radial <= self.part_radial_tolerance
         aligned = in_bore & (yaw_err <= self.max_yaw_error) & (tilt <= np.deg2rad(10))
         success = aligned & (depth >= self.success_depth_fraction * self.hole_depth)
