@@ -97,11 +97,13 @@ class ScriptedPolicy:
         # Approach-axis force in the hand frame (z points down the gripper).
         return rel.p, _yaw_error(self.env), ft[:, 2].abs()
 
-    def move(self, target_in_socket: torch.Tensor, speed: float = 1.0) -> torch.Tensor:
-        """Action moving the tip towards ``target_in_socket`` ``[B, 3]`` (socket frame), upright.
+    def move(self, target_in_socket: torch.Tensor, speed: float = 1.0, turn: Optional[torch.Tensor] = None) -> torch.Tensor:
+        """Action moving the tip towards ``target_in_socket`` ``[B, 3]`` (socket frame), upright, or turned by ``turn``.
 
         The default controller moves relative to the *current* pose, so contact torques would
         tilt the part a little more at every step; the rotation part undoes any tilt and yaw.
+        ``turn`` ``[B, 3]`` (rotation vector, socket frame, as ``_rotation_error`` measures it) is the orientation
+        error to hold instead of none.
         """
         tip = self.env.tip_pose_in_socket().p
         delta = target_in_socket - tip
@@ -110,7 +112,10 @@ class ScriptedPolicy:
         action[:, :3] = (delta_world / EE_POS_LIMIT).clamp(-speed, speed)
         # pd_ee_delta_pose rotates about root-aligned axes at the TCP, by the action times
         # ``rot_lower`` (= -EE_ROT_LIMIT in ManiSkill 3.0): +error undoes the error.
-        action[:, 3:] = (_rotation_error(self.env) / EE_ROT_LIMIT).clamp(-1, 1)
+        error = _rotation_error(self.env)
+        if turn is not None:
+            error = error - torch.einsum("bij,bj->bi", quaternion_to_matrix(self.env.socket.pose.q), turn)
+        action[:, 3:] = (error / EE_ROT_LIMIT).clamp(-1, 1)
         return action
 
 
@@ -226,7 +231,7 @@ class SearchFailPolicy(AlignSuccessPolicy):
 
 
 class HoldPolicy(ScriptedPolicy):
-    """Move the tip to ``target`` (socket frame, ``[3]`` or ``[B, 3]``) and hold it there, upright.
+    """Move the tip to ``target`` (socket frame, ``[3]`` or ``[B, 3]``) and hold it there, upright (or ``turn``ed).
 
     Not an examination policy of the paper: the reward examination uses it to read the reward
     with the tip held at the same places in every episode (colour spread, alignment, contact).
@@ -235,10 +240,18 @@ class HoldPolicy(ScriptedPolicy):
 
     VIA_REACHED = 0.001  # m from ``via`` at which the policy turns to ``target``
 
-    def __init__(self, env, target, seed: int = 0, speed: float = 0.5, via=None):
+    def __init__(self, env, target, seed: int = 0, speed: float = 0.5, via=None, turn=None):
         super().__init__(env, seed)
         self.target = torch.as_tensor(target, dtype=torch.float32, device=self.device).expand(self.n, 3).clone()
         self.speed = speed
+        # ``turn``: the rotation vector (socket frame, rad; x, y tilt, z turns about the part's axis) to hold the part
+        # at instead of upright, as a policy hovering with the part turned away from the port does (a round part has
+        # no turn about its axis: ``_rotation_error`` ignores it, and so does this).
+        self.turn = None
+        if turn is not None:
+            vec = [float(a) for a in turn]
+            vec[2] = vec[2] if self.env.yaw_symmetry else 0.0
+            self.turn = torch.tensor(vec, dtype=torch.float32, device=self.device).expand(self.n, 3)
         # A straight line from the start to a target beside the socket's block, below its top face,
         # would catch the part on the block's edge: the ``via`` points (socket frame, ``[3]`` or ``[K, 3]``)
         # are passed through first, in order.
@@ -255,7 +268,7 @@ class HoldPolicy(ScriptedPolicy):
         last = len(self.waypoints) - 1
         reached = (tip - self.waypoints[self.phase, rows]).norm(dim=1) < self.VIA_REACHED
         self.phase = torch.where(reached & (self.phase < last), self.phase + 1, self.phase)
-        return self.move(self.waypoints[self.phase, rows], speed=self.speed)
+        return self.move(self.waypoints[self.phase, rows], speed=self.speed, turn=self.turn)
 
 
 class RandomPolicy(ScriptedPolicy):

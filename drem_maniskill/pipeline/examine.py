@@ -113,6 +113,14 @@ SIDE_POSITION = f"{SIDE_DOWN * 1000:.0f} mm down, {SIDE_CLEAR * 1000:.0f} mm bes
 SIDE_PUSH = 0.008  # m the pushed hold aims below where it reaches the part down beside the block
 SIDE_PUSHED = "pushed down against the block's side"
 FACE_PUSHED = f"pushed down on the face beside the opening (aimed 3 mm off, {SIDE_PUSH * 1000:.0f} mm down)"
+# Where SAC held the plug on the GF USB reward (stop 23; scripts/exploit_rewards.py): 1-4 mm above the face, 2-10 mm
+# off the axis, touching nothing, turned 13-55 deg about its axis and tilted 10-16 deg. GF paid one such episode's
+# last state 0.94 (an insertion 0.985), the same place upright 0.32, and 4 mm above, 4 mm off turned 40 deg either
+# way 0.2-0.3: the pocket is narrow, so the hold is that state itself, and beside it the same place upright.
+TURNED_AT = (0.0028, -0.0078, 0.0034)  # m, socket frame
+TURN = tuple(np.deg2rad([6.6, 8.9, -55.2]))  # rotation vector (socket frame, rad): tilted 11 deg, turned -55 deg
+TURNED_HOVER = "3 mm above, 8 mm off, turned 55 deg"
+UPRIGHT_HOVER = "3 mm above, 8 mm off"
 
 
 def hold_targets(env) -> dict:
@@ -137,7 +145,12 @@ def hold_targets(env) -> dict:
     # axis (USB and peg alike) and pushes there with 20-25 N (SAC's policy pushed 77 N, 1-3 mm off).
     face = (0.003, 0.0, -SIDE_PUSH)
     return {**HOLD_POSITIONS, FLOOR_POSITION: (0.0, -FLOOR_BESIDE, floor), SIDE_POSITION: side, SIDE_PUSHED: pushed,
-            FACE_PUSHED: face}
+            FACE_PUSHED: face, TURNED_HOVER: TURNED_AT, UPRIGHT_HOVER: TURNED_AT}
+
+
+def hold_turns(env) -> dict:
+    """Orientations (rotation vectors, socket frame; ``HoldPolicy(turn=)``) some ``hold_targets`` are held at, not upright."""
+    return {TURNED_HOVER: TURN}
 
 
 def _beside_side(env) -> float:
@@ -152,6 +165,7 @@ def hold_vias(env) -> dict:
 
 
 HOLD_STEPS = 20  # steps to reach and settle at a position (about 1 cm per step at half speed)
+TURN_STEPS = 30  # for a turned hold: the arm turns 2.9 deg a step at most, and TURN is 55 deg from the start's +-10
 INSERTION_START = 0.001  # m below the top face: the part has started going in
 AT_OPENING = 0.001  # m from the axis: the part is over the opening, not on the face beside it
 
@@ -251,7 +265,7 @@ def first_contact_loss(episode: dict, contact: float = CONTACT_FORCE) -> dict | 
 
 
 def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS,
-                   vias: dict | None = None) -> dict:
+                   vias: dict | None = None, turns: dict | None = None) -> dict:
     """The reward with the tip held at each of ``positions`` (and the expert's insertion), per seed.
 
     Each seed is a reset with the task's colour randomisation, so the spread of one position's
@@ -263,7 +277,9 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
     for name, target in tqdm(positions.items(), desc="examine: hold positions", unit="position", disable=None):
         rewards, errors = [], []
         for seed in seeds:
-            ep = rollout(env, HoldPolicy(env, target, via=(vias or {}).get(name)), int(seed), steps, stop_on_success=False)
+            turn = (turns or {}).get(name)
+            policy = HoldPolicy(env, target, via=(vias or {}).get(name), turn=turn)
+            ep = rollout(env, policy, int(seed), steps if turn is None else max(steps, TURN_STEPS), stop_on_success=False)
             rewards.append(ep.rewards[-1])
             reached = env.unwrapped.tip_pose_in_socket().p[0].cpu().numpy()
             errors.append(float(np.linalg.norm(reached - np.asarray(target)) * 1000))
@@ -313,7 +329,7 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         expert = [examination_episode(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
         curves = {p: [examination_episode(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
                   for p in policies}
-        held = hold_positions(env, seeds, hold_targets(env), vias=hold_vias(env)) if is_insertion_task(env_id) else {}
+        held = hold_positions(env, seeds, hold_targets(env), vias=hold_vias(env), turns=hold_turns(env)) if is_insertion_task(env_id) else {}
     finally:
         env.close()
     solved = [e for e in expert if e["success"]]
@@ -357,6 +373,10 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         # Touching the face beside the opening over hovering above it as far off: below 1, a descent that misses the
         # opening by more than its clearance loses reward (the valley SAC stopped above on the side + push USB reward).
         face_over_hover=_held_ratio(held, *FACE_OVER_HOVER),
+        # The part turned about its axis and tilted over hovering upright at the same place: below 1, turning the part
+        # away from the port loses reward (the hover SAC settled in on the GF USB reward, which no upright hold reached).
+        turned_over_upright=_held_ratio(held, TURNED_HOVER, UPRIGHT_HOVER),
+        turned_over_inserted=_held_ratio(held, TURNED_HOVER),
         success_rate={p: float(np.mean([ep["success"] for ep in eps])) for p, eps in curves.items()},
         # Over every step of the expert and examination rollouts.
         spearman_with_normalized_dense=_pooled_spearman(everything := expert + [ep for eps in curves.values() for ep in eps],

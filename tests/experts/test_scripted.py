@@ -52,3 +52,27 @@ def test_a_hold_pushed_against_the_blocks_side_presses_it_sideways_and_down_wher
     assert abs(path[-1, 2] + SIDE_DOWN) < 1e-3  # the overmould (12 mm above the tip) on the block's top edge
     force = env.unwrapped.ft.buffer[0, -1, :3].cpu().numpy()
     assert force[0] > 20 and force[2] < -20  # pressed into the side and down, as the SAC policy did
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_a_turned_hold_holds_the_part_turned_and_tilted_where_an_upright_one_holds_it_upright(task):
+    """``HoldPolicy(turn=)``: the tip where asked, turned about its axis and tilted as asked (as the success test measures
+    them); a round part is only tilted, since it has no turn about its axis to hold."""
+    import numpy as np
+
+    from drem_maniskill.experts.scripted import HoldPolicy
+    from drem_maniskill.pipeline.examine import TURN, TURN_STEPS, TURNED_HOVER, hold_targets, hold_turns
+
+    env = make_env(task, obs_mode="state_dict")
+    u = env.unwrapped
+    target, turn = hold_targets(env)[TURNED_HOVER], hold_turns(env)[TURNED_HOVER]
+    assert turn == TURN
+    for held, tilt_deg, yaw_deg in ((None, 0.0, 0.0), (turn, 11.1, 55.2 if u.yaw_symmetry else 0.0)):
+        obs, _ = env.reset(seed=3)
+        pi = HoldPolicy(env, target, turn=held)
+        for _ in range(TURN_STEPS):  # as the examination holds it
+            obs, *_ = env.step(pi(obs))
+        rel = u.tip_pose_in_socket()
+        tilt, yaw = (float(np.degrees(a[0].cpu())) for a in u.orientation_errors(rel))
+        assert abs(rel.p[0].cpu().numpy() - np.asarray(target)).max() < 5e-4
+        assert abs(tilt - tilt_deg) < 1.5 and abs(yaw - yaw_deg) < 2.0, (tilt, yaw)
