@@ -58,7 +58,8 @@ def _cmd_sample(args) -> None:
                                        face_lineages=args.face_lineages, face_children=args.face_children,
                                        face_step=args.face_step, side_depth=args.side_depth,
                                        side_step=args.side_step, push_children=args.push_children,
-                                       goal_presses=args.goal_presses).items() if v is not None}
+                                       goal_presses=args.goal_presses, turn_depth=args.turn_depth,
+                                       turn_children=args.turn_children).items() if v is not None}
     config = SamplerConfig.preset(args.preset, **overrides)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
@@ -200,6 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="random actions from the goal pushing down over the whole range (sideways and twisting within the "
                         "goal's own range), labelled depth 1: the inserted part pressed on the opening's floor (not in "
                         "the paper; default 0: off)")
+    p.add_argument("--turn-depth", type=int,
+                   help="depths of lineages turning the part about its axis and tilting it near the opening, above it "
+                        "and on the face (not in the paper; needs --face-depth; default 0: off)")
+    p.add_argument("--turn-children", type=int, help="random actions per turn seed and depth (default: 24)")
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument("--episode", type=int, help="episode of the expert file")
     p.add_argument("--workers", type=int, help="worker processes")

@@ -132,6 +132,21 @@ class SamplerConfig:
     like an insertion (docs/drem.md, "The side phase"). These children push the part into the face, the edge and
     the side with tens of newtons, labelled where they are: as far from the goal as the seed they left, plus one.
     Those that fall into the opening are not kept: they may be a step from the goal."""
+    turn_depth: int = 0
+    """Depths of the turn phase (not in the paper; 0: off; needs the face phase): lineages that turn the part about its
+    axis and tilt it, near the opening. Every other phase keeps the part upright there (the face and side lineages
+    penalise turning, the backward phase's steps near the goal are a fraction of the rotation range), so a reward
+    trained on them values a turned part near the opening arbitrarily, and SAC on the GF USB reward hovered 8 mm off
+    the axis turned 55 deg, paid 0.94 against 0.985 for an insertion, where the same place upright read 0.32
+    (docs/drem.md, "The turn phase"). Each lineage starts at a seed near the opening (``TURN_HOVER_DEPTHS`` above it,
+    ``TURN_FACE_STEPS`` along the face lineages) and keeps the child that turned farthest about its own axis; step
+    ``k`` is labelled the seed's label plus ``k``: one step per rotation step of the controller."""
+    turn_lineages: int = 2
+    """Turn lineages per seed: rotation axes ``turn_tilt`` from the vertical, turning one way and the other."""
+    turn_children: int = 24
+    """Random actions per turn seed and depth: the rotation over the whole range, the translation within ``face_step``."""
+    turn_tilt: float = 20.0
+    """Degrees between a turn lineage's rotation axis and the vertical: mostly turning about the part's axis, partly tilting."""
     goal_presses: int = 0
     """Random actions from the goal state pushing down over the whole range (not in the paper; 0: off),
     labelled depth 1 and never seeds. A demo that descends slowly ends as soon as the part is far enough in, before
@@ -165,6 +180,23 @@ def face_directions(config: SamplerConfig, elevation_deg: Optional[float] = None
     elevation = np.deg2rad(config.face_elevation if elevation_deg is None else elevation_deg)
     return np.stack([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation),
                      np.full(config.face_lineages, np.sin(elevation))], -1)
+
+
+def turn_axes(config: SamplerConfig, origins: int) -> np.ndarray:
+    """Unit rotation axes ``[origins * turn_lineages, 3]`` (world frame at the expert's placement) of the turn lineages.
+
+    Lineage ``l`` of origin ``o``: ``turn_tilt`` from the vertical, turning about +z for even ``l`` and -z for odd,
+    tilting towards an azimuth that differs between origins (golden-angle steps), so the tree sees many tilts.
+    """
+    lineages = np.arange(origins * config.turn_lineages)
+    azimuth = 2 * np.pi * (lineages // config.turn_lineages * 0.381966 + lineages % config.turn_lineages / config.turn_lineages)
+    tilt = np.deg2rad(config.turn_tilt)
+    sign = np.where(lineages % 2 == 0, 1.0, -1.0)
+    return np.stack([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), sign * np.cos(tilt)], -1)
+
+
+TURN_HOVER_DEPTHS = (0, 2, 4)  # the turn lineages start at the backward seeds this many depths past the entry (above it)
+TURN_FACE_STEPS = (2, 5)  # and at these steps of every face lineage (3 and 7.5 mm from the opening at 1.5 mm a step)
 
 
 FACE_SEED_HEIGHT = -0.0002  # m: a face seed's tip is above this, on or over the face, not caught in the opening's mouth
@@ -306,6 +338,16 @@ class ChildSampler:
         return int((getattr(controller, "action_mapping", {}) or {}).get("arm", (0, 0))[0]) + 2
 
     @property
+    def rotation_dims(self) -> list:
+        """The action dims that turn the end effector (a ``pd_ee_delta_pose`` arm controller's rotation)."""
+        controller = self.unwrapped.agent.controller
+        arm = getattr(controller, "controllers", {}).get("arm")
+        if "EEPose" not in (type(arm).__name__ if arm is not None else ""):
+            raise ValueError(f"turning needs an end-effector delta pose arm controller (pd_ee_delta_pose), not {arm or controller}")
+        first = int((getattr(controller, "action_mapping", {}) or {}).get("arm", (0, 0))[0])
+        return [first + 3, first + 4, first + 5]
+
+    @property
     def translation_limit(self) -> float:
         """Metres of end-effector travel a full-scale arm action asks for (the controller's ``pos_upper``)."""
         arm = getattr(self.unwrapped.agent.controller, "controllers", {}).get("arm")
@@ -437,6 +479,9 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
     if config.push_children > 0 and config.face_depth <= 0:
         sampler.close()
         raise ValueError("the push children (--push-children) start from the face and side lineages' seeds: give --face-depth too")
+    if config.turn_depth > 0 and config.face_depth <= 0:
+        sampler.close()
+        raise ValueError("the turn phase (--turn-depth) starts from the face lineages' seeds among others: give --face-depth too")
     if config.side_depth > 0 and config.face_depth <= 0:
         sampler.close()
         raise ValueError("the side phase (--side-depth) goes on from the face phase's lineages: give --face-depth too")
@@ -493,6 +538,8 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             _sample_face(partial, sampler, pool, config, start_depth, progress, side=True)
         if config.push_children > 0:
             _sample_push(partial, sampler, pool, config, progress)
+        if config.turn_depth > 0:
+            _sample_turn(partial, sampler, pool, config, start_depth, progress)
         if config.goal_presses > 0:
             _sample_goal_presses(partial, sampler, pool, config, action_scale_at(0, expert_ee, config, sampler.translation_limit))
         with h5py.File(partial, "a") as f:
@@ -509,11 +556,11 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
 
 
 def _children_of(sampler: "ChildSampler", pool, config: SamplerConfig, seeds: list, seed_nodes: list, depth: int,
-                 num_children: int, scale: float, stream: int = 0, down: bool = False) -> dict:
+                 num_children: int, scale: float, stream: int = 0, down: bool = False, turn: bool = False) -> dict:
     """``num_children`` children of every seed, each with fresh colours and placement where configured, merged in seed order.
 
     ``down``: the arm's vertical action component is drawn downwards over the whole range (``ChildSampler.vertical_dim``),
-    the others within ``scale``.
+    the others within ``scale``. ``turn``: the arm's rotation components over the whole range (``ChildSampler.rotation_dims``).
     """
     # The random streams are functions of the depth, so a resumed run draws the same actions; colours and
     # placements have streams of their own, so turning them off leaves the actions as they were.
@@ -525,6 +572,8 @@ def _children_of(sampler: "ChildSampler", pool, config: SamplerConfig, seeds: li
         actions = sampler.random_actions(rng, num_children, scale)
         if down:
             actions[:, sampler.vertical_dim] = -np.abs(actions[:, sampler.vertical_dim]) / scale * config.action_scale
+        if turn:
+            actions[:, sampler.rotation_dims] = actions[:, sampler.rotation_dims] / scale * config.action_scale
         colors = sampler.random_colors(color_rng, num_children) if config.randomize_colors else None
         places = sampler.random_placements(place_rng, num_children) if config.randomize_placement else None
         if pool is None:
@@ -709,6 +758,75 @@ def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     bar.close()
 
 
+def _rotation_vectors(q: np.ndarray, q0: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``[n, 3]`` (world frame, rad) turning quaternions ``q0 [n, 4]`` into ``q [n, 4]`` (wxyz)."""
+    w0, v0 = q0[:, :1], -q0[:, 1:]  # q0's inverse
+    w, v = q[:, :1], q[:, 1:]
+    rel_w = w * w0 - np.sum(v * v0, axis=1, keepdims=True)
+    rel_v = w * v0 + w0 * v + np.cross(v, v0)
+    rel_v = np.where(rel_w < 0, -rel_v, rel_v)  # the short way round
+    norm = np.linalg.norm(rel_v, axis=1, keepdims=True)
+    angle = 2 * np.arctan2(norm, np.abs(rel_w))
+    return rel_v / np.maximum(norm, 1e-12) * angle
+
+
+def turn_origins(path, config: SamplerConfig, start_depth: int) -> tuple:
+    """The turn lineages' first seeds: ``(group of seeds/, index in it, label)`` each: the entry seed, the backward seeds
+    ``TURN_HOVER_DEPTHS`` past it that are out of the opening, and the face lineages' seeds at ``TURN_FACE_STEPS``."""
+    entry = face_entry_depth(path, start_depth)
+    with h5py.File(path, "r") as f:
+        # Above the opening: a backward seed past the entry may have gone back into it (a coarse tree's).
+        hover = [d for d in TURN_HOVER_DEPTHS if entry + d <= start_depth
+                 and (d == 0 or not in_opening(f["tip_in_socket"][[int(f[f"seeds/depth_{entry + d}/node"][0])]])[0])]
+    groups = [(f"depth_{entry + d}", 0, entry + d) for d in hover]
+    groups += [(f"face_{k}", i, entry + k) for k in TURN_FACE_STEPS if k <= config.face_depth for i in range(config.face_lineages)]
+    return groups
+
+
+def _sample_turn(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, start_depth: int, progress: bool) -> None:
+    """The turn phase (``SamplerConfig.turn_depth``): lineages that turn and tilt the part near the opening.
+
+    Lineage ``l`` keeps, at each step, the child whose rotation from the lineage's first seed goes farthest along its
+    axis (``turn_axes``), out of the opening (``_caught_penalty``, as the side phase); children that went into the
+    opening are not kept (``_out_of_opening``). Step ``k``'s nodes are labelled their lineage's first label plus ``k``
+    (kept per seed in the group's ``label`` attribute, so a resume goes on from them).
+    """
+    with h5py.File(partial, "r") as f:
+        if int(f.attrs.get("face_completed", 0)) < config.face_depth:
+            raise ValueError(f"{partial}: the turn phase starts from the face seeds, which are not complete")
+        done = int(f.attrs.get("turn_completed", 0))
+        origins = turn_origins(partial, config, start_depth)
+        first = [f[f"seeds/{g}"] for g, _, _ in origins]
+        start_nodes = np.array([int(g["node"][i]) for g, (_, i, _) in zip(first, origins)])
+        start_q = f["tcp_pose"][()][np.repeat(start_nodes, config.turn_lineages), 3:7].astype(np.float64)
+        if done == 0:
+            seeds = [dict(state=g["state"][i], in_start_region=g["in_start_region"][i]) for g, (_, i, _) in zip(first, origins)]
+            seeds = [s for s in seeds for _ in range(config.turn_lineages)]
+            nodes = list(np.repeat(start_nodes, config.turn_lineages))
+            labels = np.repeat([label for _, _, label in origins], config.turn_lineages)
+        else:
+            seeds, nodes = _read_seeds(f[f"seeds/turn_{done}"])
+            labels = np.asarray(f[f"seeds/turn_{done}"].attrs["label"])
+    axes = turn_axes(config, len(origins))
+    scale = float(np.clip(config.face_step / sampler.translation_limit, config.min_action_scale, config.action_scale))
+    bar = tqdm(total=config.turn_depth, initial=done, desc="turn sampling", unit="depth", disable=not progress)
+    for k in range(done, config.turn_depth):
+        merged = _children_of(sampler, pool, config, seeds, nodes, int(labels.min()), config.turn_children, scale,
+                              stream=8, turn=True)
+        turned = _rotation_vectors(merged["ee"][:, 3:7].astype(np.float64), np.repeat(start_q, config.turn_children, axis=0))
+        along = np.einsum("lcx,lx->lc", turned.reshape(len(axes), -1, 3), axes)
+        along = along - _caught_penalty(merged["tip_in_socket"].astype(np.float64), side=True).reshape(along.shape)
+        chosen = np.arange(len(axes)) * along.shape[1] + along.argmax(1)
+        merged["label"] = np.repeat(labels + 1, config.turn_children)
+        merged, chosen, dropped = _out_of_opening(merged, chosen)
+        labels = labels + 1
+        nodes = _append_depth(partial, merged, merged.pop("label"), chosen, group=f"turn_{k + 1}", counter="turn_completed",
+                              count=k + 1, attrs={"dropped_in_opening": dropped, "label": labels})
+        seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
+        bar.update(1)
+    bar.close()
+
+
 def _sample_goal_presses(partial: Path, sampler: "ChildSampler", pool, config: SamplerConfig, scale: float) -> None:
     """The goal presses (``SamplerConfig.goal_presses``): actions pushing down from the goal, labelled depth 1.
 
@@ -725,14 +843,18 @@ def _sample_goal_presses(partial: Path, sampler: "ChildSampler", pool, config: S
     _append_depth(partial, merged, 1, np.zeros(0, np.int64), group="goal_press", counter="goal_press_completed", count=1)
 
 
-RESUMABLE_SAMPLER_FIELDS = ("max_depth",)  # a run that gave up at max_depth resumes with a larger one
+# A run that gave up at max_depth resumes with a larger one; one sampled with 1 worker process goes on with 2 (the
+# nodes sampled stay as they are; a child's step differs between worker layouts only by the sibling before it in
+# PhysX's contact cache, 0.03-0.11 N, docs/drem.md), where a changed `workers` used to throw the partial tree away.
+RESUMABLE_SAMPLER_FIELDS = ("max_depth", "workers")
 # Phases a finished tree can gain: field -> the fields that must match once the phase has begun.
-GROWABLE = {"side_depth": ("side_children", "side_step", "side_elevation"), "push_children": (), "goal_presses": ()}
+GROWABLE = {"side_depth": ("side_children", "side_step", "side_elevation"), "push_children": (), "goal_presses": (),
+            "turn_depth": ("turn_lineages", "turn_children", "turn_tilt")}
 
 
 def _resumable(saved: dict, now: dict) -> bool:
-    """Whether a partial tree with header ``saved`` can be continued under ``now``: the same but for ``max_depth``,
-    or a tree without the side phase or the push children (``GROWABLE``) gaining them."""
+    """Whether a partial tree with header ``saved`` can be continued under ``now``: the same but for ``max_depth`` and
+    ``workers``, or a tree without the side phase, the push children or the turn phase (``GROWABLE``) gaining them."""
     def strip(h):
         drop = RESUMABLE_SAMPLER_FIELDS + tuple(GROWABLE) + sum(GROWABLE.values(), ())
         return {**h, "config": {k: v for k, v in h.get("config", {}).items() if k not in drop}}
@@ -796,9 +918,10 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
     return 0, [dict(state=flat[0], in_start_region=in_region)], [0]
 
 
-def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray, group: Optional[str] = None,
+def _append_depth(path: Path, data: dict, depth, chosen: np.ndarray, group: Optional[str] = None,
                   counter: str = "completed_depth", count: Optional[int] = None, attrs: Optional[dict] = None) -> list:
-    """Append one depth's nodes and its chosen seeds in one go; returns the seeds' node indices.
+    """Append one depth's nodes (``depth``: their label, or one per node) and its chosen seeds in one go; returns the
+    seeds' node indices.
 
     ``attrs`` go on the seeds' group (e.g. how many children were dropped).
 
@@ -815,7 +938,7 @@ def _append_depth(path: Path, data: dict, depth: int, chosen: np.ndarray, group:
             rows[key] = data[key].astype(np.float32)
     rows.update(
         ft=data["ft"].astype(np.float32), tcp_pose=data["tcp_pose"].astype(np.float32),
-        depth=np.full(n, depth, np.int32), parent=data["parent"].astype(np.int64),
+        depth=np.broadcast_to(np.asarray(depth, np.int32), (n,)).copy(), parent=data["parent"].astype(np.int64),
         in_start_region=data["in_start_region"].astype(bool), is_seed=is_seed,
     )
     with h5py.File(path, "a") as f:

@@ -368,6 +368,52 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
 
 
 @pytest.mark.slow
+def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_labelled_a_step_per_turn(pipeline, tmp_path, monkeypatch):
+    """Turn lineages start at the hover and face seeds near the opening, each turning farther about its own axis at
+    every step (more than the upright phases ever turn the part), labelled their first seed's label plus the step; none in the opening; a finished tree gains them, and an interrupted phase resumes."""
+    from drem_maniskill.pipeline.sampling import _rotation_vectors, turn_axes, turn_origins
+
+    base = dict(face_depth=2, face_lineages=2, face_children=6)
+    grown = tmp_path / "tree.h5"
+    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
+    with pytest.raises(ValueError, match="--face-depth"):
+        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", turn_depth=2), progress=False)
+    config = SamplerConfig.preset("tiny", **base, turn_depth=3, turn_children=6)
+    calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
+                                   lambda path, depth, chosen, kw: kw.get("group") == "turn_2")
+    assert calls == ["turn_2", "turn_3"]  # nothing of the tree it grew from again
+    with h5py.File(grown, "r") as f:
+        origins = turn_origins(grown, config, int(f.attrs["start_depth"]))
+        entry = face_entry_depth(grown, int(f.attrs["start_depth"]))
+        hover = [f"depth_{entry + d}" for d in (0, 2, 4)]
+        # The backward seeds above the entry that are out of the opening (a tiny tree's may have gone back in), then
+        # every face lineage's second seed.
+        out = [g for g in hover if not in_opening(f["tip_in_socket"][[int(f[f"seeds/{g}/node"][0])]])[0]]
+        assert [g for g, _, _ in origins] == out + ["face_2", "face_2"] and out[0] == hover[0]
+        lineages = len(origins) * config.turn_lineages
+        dropped = [int(f[f"seeds/turn_{k}"].attrs["dropped_in_opening"]) for k in range(1, 4)]
+        assert int(f.attrs["turn_completed"]) == 3 and len(f["depth"]) == n + 3 * lineages * 6 - sum(dropped)
+        assert not in_opening(f["tip_in_socket"][n:]).any()
+        depth, tcp = f["depth"][()], f["tcp_pose"][()].astype(np.float64)
+        first = np.repeat([int(f[f"seeds/{g}/node"][i]) for g, i, _ in origins], config.turn_lineages)
+        labels = np.repeat([label for _, _, label in origins], config.turn_lineages)
+        assert sorted(set(labels)) == sorted({entry, entry + 2} | {int(g[6:]) for g in out})  # face_2's seeds: entry + 2
+        axes, along = turn_axes(config, len(origins)), []
+        for k in range(1, 4):
+            seeds = f[f"seeds/turn_{k}/node"][()]
+            assert np.array_equal(depth[seeds], labels + k) and np.array_equal(f[f"seeds/turn_{k}"].attrs["label"], labels + k)
+            along.append(np.einsum("lx,lx->l", _rotation_vectors(tcp[seeds, 3:7], tcp[first, 3:7]), axes))
+        along = np.array(along)
+        # Each lineage turns farther along its own axis at every step (the controller turns up to 0.05 rad a step; the
+        # best of 6 random children about half that), more than a whole step in three.
+        assert np.all(np.diff(along, axis=0) > 0) and np.all(along[-1] > 0.05), along
+        # More than the upright phases ever turn the part: the face seeds they start from.
+        face = f["seeds/face_2/node"][()]
+        entry_node = int(f[f"seeds/depth_{entry}/node"][0])
+        assert np.linalg.norm(_rotation_vectors(tcp[face, 3:7], tcp[[entry_node] * len(face), 3:7]), axis=1).max() < along[-1].min()
+
+
+@pytest.mark.slow
 def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_it(pipeline, tmp_path, monkeypatch):
     """Goal presses: children of the goal only, labelled depth 1, never seeds, pushed down on to the hole's floor
     and still in it, pressing harder than the goal's own children; a finished tree gains them by a resume that
@@ -396,3 +442,22 @@ def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_i
     grown.rename(grown.with_name(grown.name + ".partial"))
     backward_sample(pipeline["expert"], str(grown), config, progress=False)
     assert calls == []
+
+
+def test_a_partial_tree_resumes_with_more_workers_or_a_new_phase_but_not_with_other_children():
+    """Resuming keeps what was sampled: another worker count or a larger max_depth, or a finished tree gaining a phase it
+    lacked, continue it; another M or a phase changed once begun start over."""
+    from dataclasses import asdict
+
+    from drem_maniskill.pipeline.sampling import _resumable
+
+    def header(**kw):
+        return dict(config=asdict(SamplerConfig(face_depth=8, **kw)), env_id="USBInsertion-v1")
+
+    saved = header()
+    assert _resumable(saved, header(workers=2)) and _resumable(saved, header(max_depth=120))
+    assert _resumable(saved, header(turn_depth=24, turn_children=16)) and _resumable(saved, header(side_depth=8))
+    assert not _resumable(saved, header(num_children=400))
+    begun = header(turn_depth=24, turn_children=16)
+    assert _resumable(begun, header(turn_depth=24, turn_children=16, workers=2))
+    assert not _resumable(begun, header(turn_depth=24, turn_children=24))  # a phase once begun resumes only as it was
