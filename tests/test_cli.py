@@ -41,11 +41,15 @@ def test_chain_record_sample_train_examine(tmp_path):
     assert quality["success_rate"]["direct_success"] == 1.0
     assert -1 <= quality["spearman_with_normalized_dense"] <= 1 and -1 <= quality["spearman_with_insertion_depth"] <= 1
     assert len(quality["dense_curves"]["random"][0]) == len(quality["curves"]["random"][0])
-    from drem_maniskill.pipeline.examine import FACE_PUSHED, HOLD_POSITIONS, SIDE_POSITION, SIDE_PUSHED
+    from drem_maniskill.pipeline.examine import (
+        FACE_PUSHED, HOLD_POSITIONS, SIDE_POSITION, SIDE_PUSHED, TURNED_HOVER, UPRIGHT_HOVER,
+    )
 
     held = quality["held_positions"]
     floor = "pressed on the floor, 75 mm beside"
-    assert list(held) == [*HOLD_POSITIONS, floor, SIDE_POSITION, SIDE_PUSHED, FACE_PUSHED, "inserted"]
+    assert list(held) == [*HOLD_POSITIONS, floor, SIDE_POSITION, SIDE_PUSHED, FACE_PUSHED, TURNED_HOVER, UPRIGHT_HOVER, "inserted"]
+    assert quality["turned_over_upright"] == pytest.approx(held[TURNED_HOVER]["mean"] / held[UPRIGHT_HOVER]["mean"])
+    assert quality["turned_over_inserted"] == pytest.approx(held[TURNED_HOVER]["mean"] / held["inserted"]["mean"])
     assert all(v["reached_error_mm"] < 2.0 for k, v in held.items() if k not in ("inserted", SIDE_PUSHED) and "beside" not in k)
     # Pressed on the floor: 2 mm short of the target below it, nowhere else.
     assert 1.0 < held[floor]["reached_error_mm"] < 3.0
