@@ -770,7 +770,7 @@ def _rotation_vectors(q: np.ndarray, q0: np.ndarray) -> np.ndarray:
     return rel_v / np.maximum(norm, 1e-12) * angle
 
 
-def turn_origins(path, config: SamplerConfig, start_depth: int) -> tuple:
+def turn_origins(path, config: SamplerConfig, start_depth: int) -> list:
     """The turn lineages' first seeds: ``(group of seeds/, index in it, label)`` each: the entry seed, the backward seeds
     ``TURN_HOVER_DEPTHS`` past it that are out of the opening, and the face lineages' seeds at ``TURN_FACE_STEPS``."""
     entry = face_entry_depth(path, start_depth)
