@@ -45,8 +45,9 @@ def _yaw_error(env) -> torch.Tensor:
     return torch.remainder(yaw + period / 2, period) - period / 2
 
 
-def _rotation_error(env) -> torch.Tensor:
-    """Rotation vector ``[B, 3]`` (world axes) from the socket's orientation to the part's.
+def _rotation_error(env, turn: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """Rotation vector ``[B, 3]`` (world axes) from the socket's orientation, or ``turn`` ``[B, 3]`` (socket frame)
+    from it, to the part's.
 
     Tilt comes from the full relative rotation; yaw is taken modulo the part's symmetry (and
     ignored for a round part), so the policies never turn a part a needless half turn.
@@ -54,6 +55,8 @@ def _rotation_error(env) -> torch.Tensor:
     rel = env.tip_pose_in_socket()
     err = quaternion_to_axis_angle(rel.q)
     err[:, 2] = _yaw_error(env)
+    if turn is not None:
+        err = err - turn
     rot = quaternion_to_matrix(env.socket.pose.q)
     return torch.einsum("bij,bj->bi", rot, err)
 
@@ -112,10 +115,7 @@ class ScriptedPolicy:
         action[:, :3] = (delta_world / EE_POS_LIMIT).clamp(-speed, speed)
         # pd_ee_delta_pose rotates about root-aligned axes at the TCP, by the action times
         # ``rot_lower`` (= -EE_ROT_LIMIT in ManiSkill 3.0): +error undoes the error.
-        error = _rotation_error(self.env)
-        if turn is not None:
-            error = error - torch.einsum("bij,bj->bi", quaternion_to_matrix(self.env.socket.pose.q), turn)
-        action[:, 3:] = (error / EE_ROT_LIMIT).clamp(-1, 1)
+        action[:, 3:] = (_rotation_error(self.env, turn) / EE_ROT_LIMIT).clamp(-1, 1)
         return action
 
 
