@@ -37,6 +37,7 @@ import gymnasium as gym
 import h5py
 import numpy as np
 import torch
+from mani_skill.utils.geometry.rotation_conversions import quaternion_invert, quaternion_multiply, quaternion_to_axis_angle
 from tqdm import tqdm
 
 from drem_maniskill.envs import check_env_id
@@ -526,7 +527,7 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
             chosen = np.argsort(dist, kind="stable")[: config.num_seeds]
             depth += 1
             seed_nodes = _append_depth(partial, merged, depth, chosen)
-            seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
+            seeds = _seeds_at(merged, chosen)
             bar.update(1)
         bar.close()
         start_depth = _mark_start_depth(partial, depth)
@@ -589,6 +590,11 @@ def _children_of(sampler: "ChildSampler", pool, config: SamplerConfig, seeds: li
     return {k: np.concatenate([c[k] for c in children]) for k in children[0]}
 
 
+def _seeds_at(data, rows) -> list:
+    """The seeds the samplers take from ``rows`` of ``data`` (a depth's merged children, or a ``seeds/`` group)."""
+    return [dict(state=data["state"][i], in_start_region=data["in_start_region"][i]) for i in rows]
+
+
 def _read_seeds(group) -> tuple[list, list]:
     """The seeds of an open ``seeds/<name>`` HDF5 group, as the samplers take them, and their node indices."""
     seeds = [dict(state=s, in_start_region=r) for s, r in zip(group["state"][()], group["in_start_region"][()])]
@@ -616,7 +622,8 @@ def _farthest_along(ee: np.ndarray, origin: np.ndarray, directions: np.ndarray,
                     penalty: Optional[np.ndarray] = None) -> np.ndarray:
     """Row of each lineage's child that went farthest from ``origin`` along the lineage's direction, less ``penalty``.
 
-    ``ee`` ``[lineages * children, >= 3]`` holds the children lineage by lineage (``_children_of``'s order).
+    ``ee`` ``[lineages * children, >= 3]`` holds the children lineage by lineage (``_children_of``'s order): their
+    end-effector poses, or, for the turn phase, their rotation vectors with ``directions`` the lineages' axes.
     """
     along = np.einsum("lcx,lx->lc", (ee[:, :3] - origin).reshape(len(directions), -1, 3), directions)
     if penalty is not None:
@@ -641,7 +648,7 @@ def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: Sample
         chosen = _farthest_along(merged["ee"], origin, directions)
         depth += 1
         seed_nodes = _append_depth(partial, merged, depth, chosen)
-        seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
+        seeds = _seeds_at(merged, chosen)
         bar.update(1)
     bar.close()
     return depth, seeds
@@ -724,7 +731,7 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
         merged, chosen, dropped = _out_of_opening(merged, chosen)
         nodes = _append_depth(partial, merged, label0 + k + 1, chosen, group=f"{name}_{k + 1}",
                               counter=f"{name}_completed", count=k + 1, attrs={"dropped_in_opening": dropped})
-        seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
+        seeds = _seeds_at(merged, chosen)
         bar.update(1)
     bar.close()
 
@@ -760,14 +767,8 @@ def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
 
 def _rotation_vectors(q: np.ndarray, q0: np.ndarray) -> np.ndarray:
     """Rotation vectors ``[n, 3]`` (world frame, rad) turning quaternions ``q0 [n, 4]`` into ``q [n, 4]`` (wxyz)."""
-    w0, v0 = q0[:, :1], -q0[:, 1:]  # q0's inverse
-    w, v = q[:, :1], q[:, 1:]
-    rel_w = w * w0 - np.sum(v * v0, axis=1, keepdims=True)
-    rel_v = w * v0 + w0 * v + np.cross(v, v0)
-    rel_v = np.where(rel_w < 0, -rel_v, rel_v)  # the short way round
-    norm = np.linalg.norm(rel_v, axis=1, keepdims=True)
-    angle = 2 * np.arctan2(norm, np.abs(rel_w))
-    return rel_v / np.maximum(norm, 1e-12) * angle
+    rel = quaternion_multiply(torch.as_tensor(q), quaternion_invert(torch.as_tensor(q0)))  # the short way round
+    return quaternion_to_axis_angle(rel).numpy()
 
 
 def turn_origins(path, config: SamplerConfig, start_depth: int) -> list:
@@ -800,7 +801,7 @@ def _sample_turn(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
         start_nodes = np.array([int(g["node"][i]) for g, (_, i, _) in zip(first, origins)])
         start_q = f["tcp_pose"][()][np.repeat(start_nodes, config.turn_lineages), 3:7].astype(np.float64)
         if done == 0:
-            seeds = [dict(state=g["state"][i], in_start_region=g["in_start_region"][i]) for g, (_, i, _) in zip(first, origins)]
+            seeds = [_seeds_at(g, [i])[0] for g, (_, i, _) in zip(first, origins)]
             seeds = [s for s in seeds for _ in range(config.turn_lineages)]
             nodes = list(np.repeat(start_nodes, config.turn_lineages))
             labels = np.repeat([label for _, _, label in origins], config.turn_lineages)
@@ -814,15 +815,14 @@ def _sample_turn(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
         merged = _children_of(sampler, pool, config, seeds, nodes, int(labels.min()), config.turn_children, scale,
                               stream=8, turn=True)
         turned = _rotation_vectors(merged["ee"][:, 3:7].astype(np.float64), np.repeat(start_q, config.turn_children, axis=0))
-        along = np.einsum("lcx,lx->lc", turned.reshape(len(axes), -1, 3), axes)
-        along = along - _caught_penalty(merged["tip_in_socket"].astype(np.float64), side=True).reshape(along.shape)
-        chosen = np.arange(len(axes)) * along.shape[1] + along.argmax(1)
+        # As the other lineages go farthest along a direction in space, these go farthest about their axes.
+        chosen = _farthest_along(turned, np.zeros(3), axes, _caught_penalty(merged["tip_in_socket"].astype(np.float64), side=True))
         merged["label"] = np.repeat(labels + 1, config.turn_children)
         merged, chosen, dropped = _out_of_opening(merged, chosen)
         labels = labels + 1
         nodes = _append_depth(partial, merged, merged.pop("label"), chosen, group=f"turn_{k + 1}", counter="turn_completed",
                               count=k + 1, attrs={"dropped_in_opening": dropped, "label": labels})
-        seeds = [dict(state=merged["state"][i], in_start_region=merged["in_start_region"][i]) for i in chosen]
+        seeds = _seeds_at(merged, chosen)
         bar.update(1)
     bar.close()
 
