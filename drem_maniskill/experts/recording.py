@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import gymnasium as gym
-from tqdm import tqdm
 
 from mani_skill.utils.wrappers.record import RecordEpisode
 
@@ -24,6 +23,7 @@ from drem_maniskill.experts.policies import get_policy
 from drem_maniskill.experts.scripted import ExpertPolicy
 from drem_maniskill.experts.rollout import rollout
 from drem_maniskill.utils.episodes import episode_horizon
+from drem_maniskill.utils.progress import progress_bar
 
 
 @dataclass
@@ -83,7 +83,7 @@ def record_expert(
     horizon = max_steps or episode_horizon(env)
     result = RecordResult(h5_path=str(out / f"{name}.h5"), json_path=str(out / f"{name}.json"))
     try:
-        for seed in tqdm(list(seeds), desc=f"record {getattr(policy, '__name__', policy)} on {env_id}", unit="episode", disable=None):
+        for seed in progress_bar(list(seeds), desc=f"record {getattr(policy, '__name__', policy)} on {env_id}", unit="episode"):
             ep = rollout(env, pi, int(seed), horizon)
             env.flush_trajectory()
             if save_video:

@@ -14,12 +14,12 @@ from typing import Any, Callable, Iterable, Optional, Sequence
 import gymnasium as gym
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from drem_maniskill.experts.control import ee_control_kwargs
 from drem_maniskill.experts.policies import get_policy
 from drem_maniskill.utils.cameras import camera_images
 from drem_maniskill.utils.episodes import episode_horizon
+from drem_maniskill.utils.progress import progress_bar
 
 
 @dataclass
@@ -74,7 +74,7 @@ def success_rate(env_id: str, name: str = "expert", seeds=range(100), env_kwargs
     horizon = episode_horizon(env)
     try:
         episodes = [rollout(env, policy, int(seed), horizon)
-                    for seed in tqdm(list(seeds), desc=f"{name} on {env_id}", unit="episode", disable=None)]
+                    for seed in progress_bar(list(seeds), desc=f"{name} on {env_id}", unit="episode")]
     finally:
         env.close()
     outcomes = [ep.success for ep in episodes]

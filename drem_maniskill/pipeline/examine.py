@@ -23,13 +23,13 @@ from typing import Sequence
 import gymnasium as gym
 import numpy as np
 from scipy.stats import spearmanr
-from tqdm import tqdm
 
 from drem_maniskill.drem.wrapper import DREMRewardWrapper
 from drem_maniskill.envs import is_insertion_task
 from drem_maniskill.experts import ee_control_kwargs, get_policy, rollout
 from drem_maniskill.experts.scripted import CONTACT_FORCE, PRESS_DEPTH, HoldPolicy
 from drem_maniskill.experts.stock import STOCK_EXPERTS
+from drem_maniskill.utils.progress import progress_bar
 
 EXAMINATION = ("direct_success", "align_success", "search_fail", "random")
 STOCK_EXAMINATION = ("direct_success", "noisy_expert", "random")
@@ -274,7 +274,7 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
     "reached_error_mm"}}``.
     """
     out = {}
-    for name, target in tqdm(positions.items(), desc="examine: hold positions", unit="position", disable=None):
+    for name, target in progress_bar(positions.items(), desc="examine: hold positions", unit="position"):
         rewards, errors = [], []
         for seed in seeds:
             turn = (turns or {}).get(name)
@@ -326,8 +326,8 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         policies = [p for p in (STOCK_EXAMINATION if tuple(policies) == EXAMINATION else policies) if p in allowed]
     env = _make_env(env_id, checkpoint, env_kwargs)
     try:
-        expert = [examination_episode(env, "expert", s) for s in tqdm(seeds, desc="examine: expert", unit="episode", disable=None)]
-        curves = {p: [examination_episode(env, p, s, stop_on_success=False) for s in tqdm(seeds, desc=f"examine: {p}", unit="episode", disable=None)]
+        expert = [examination_episode(env, "expert", s) for s in progress_bar(seeds, desc="examine: expert", unit="episode")]
+        curves = {p: [examination_episode(env, p, s, stop_on_success=False) for s in progress_bar(seeds, desc=f"examine: {p}", unit="episode")]
                   for p in policies}
         held = hold_positions(env, seeds, hold_targets(env), vias=hold_vias(env), turns=hold_turns(env)) if is_insertion_task(env_id) else {}
     finally:

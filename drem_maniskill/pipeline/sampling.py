@@ -38,12 +38,12 @@ import h5py
 import numpy as np
 import torch
 from mani_skill.utils.geometry.rotation_conversions import quaternion_invert, quaternion_multiply, quaternion_to_axis_angle
-from tqdm import tqdm
 
 from drem_maniskill.envs import check_env_id
 from drem_maniskill.envs.adapter import adapter_for
 from drem_maniskill.pipeline.dataset import face_entry_depth, in_opening
 from drem_maniskill.utils.cameras import camera_roles
+from drem_maniskill.utils.progress import progress_bar
 from drem_maniskill.utils.state import broadcast_state, first_leaf, state_at
 
 DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "colors", "placement", "tip_in_socket", "depth", "parent",
@@ -508,7 +508,7 @@ def backward_sample(expert_path: str, out_path: str, config: SamplerConfig = Sam
         needed = math.ceil(config.num_seeds * config.delta)
         if _start_depth(partial) is not None:
             needed = 0  # resuming the outward phase: the start region was reached already
-        bar = tqdm(total=config.max_depth, initial=depth, desc="backward sampling", unit="depth", disable=not progress)
+        bar = progress_bar(total=config.max_depth, initial=depth, desc="backward sampling", unit="depth", enabled=progress)
         while True:
             in_region = int(sum(bool(s["in_start_region"]) for s in seeds))
             if in_region >= needed:
@@ -640,8 +640,8 @@ def _sample_outward(partial: Path, sampler: "ChildSampler", pool, config: Sample
         origin = f["tcp_pose"][start_node][:3].astype(np.float64)
     if depth == start_depth:
         seeds, seed_nodes = [seeds[0]] * len(directions), [seed_nodes[0]] * len(directions)
-    bar = tqdm(total=config.outward_depth, initial=depth - start_depth, desc="outward sampling", unit="depth",
-               disable=not progress)
+    bar = progress_bar(total=config.outward_depth, initial=depth - start_depth, desc="outward sampling", unit="depth",
+                       enabled=progress)
     while depth < start_depth + config.outward_depth:
         merged = _children_of(sampler, pool, config, seeds, seed_nodes, depth, config.outward_children, config.action_scale,
                               stream=3)
@@ -722,7 +722,7 @@ def _sample_face(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
     if done == 0 and not side:
         seeds, nodes = seeds[:1] * lineages, nodes[:1] * lineages
     scale = float(np.clip(step / sampler.translation_limit, config.min_action_scale, config.action_scale))
-    bar = tqdm(total=total, initial=done, desc=f"{name} sampling", unit="depth", disable=not progress)
+    bar = progress_bar(total=total, initial=done, desc=f"{name} sampling", unit="depth", enabled=progress)
     for k in range(done, total):
         merged = _children_of(sampler, pool, config, seeds, nodes, label0 + k, children, scale, stream=5 if side else 4)
         penalty = config.rotation_weight * _rotation_from(merged["ee"][:, 3:7].astype(np.float64), upright)
@@ -752,7 +752,7 @@ def _sample_push(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
         done = int(f.attrs.get("push_completed", 0))
         if int(f.attrs.get("face_completed", 0)) < config.face_depth or int(f.attrs.get("side_completed", 0)) < config.side_depth:
             raise ValueError(f"{partial}: the push children start from the face and side seeds, which are not complete")
-    bar = tqdm(total=len(groups), initial=done, desc="push sampling", unit="group", disable=not progress)
+    bar = progress_bar(total=len(groups), initial=done, desc="push sampling", unit="group", enabled=progress)
     for i in range(done, len(groups)):
         with h5py.File(partial, "r") as f:
             seeds, nodes = _read_seeds(f[f"seeds/{groups[i]}"])
@@ -810,7 +810,7 @@ def _sample_turn(partial: Path, sampler: "ChildSampler", pool, config: SamplerCo
             labels = np.asarray(f[f"seeds/turn_{done}"].attrs["label"])
     axes = turn_axes(config, len(origins))
     scale = float(np.clip(config.face_step / sampler.translation_limit, config.min_action_scale, config.action_scale))
-    bar = tqdm(total=config.turn_depth, initial=done, desc="turn sampling", unit="depth", disable=not progress)
+    bar = progress_bar(total=config.turn_depth, initial=done, desc="turn sampling", unit="depth", enabled=progress)
     for k in range(done, config.turn_depth):
         merged = _children_of(sampler, pool, config, seeds, nodes, int(labels.min()), config.turn_children, scale,
                               stream=8, turn=True)

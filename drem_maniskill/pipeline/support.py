@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from drem_maniskill.drem.guard import GUARD_QUANTILE, image_errors
 from drem_maniskill.drem.reward import DREMReward
 from drem_maniskill.pipeline.dataset import TreeDataset
+from drem_maniskill.utils.progress import progress_bar
 
 
 def calibrate_support(checkpoint: str, tree: str, out: str, quantile: float = GUARD_QUANTILE, batch: int = 256) -> dict:
@@ -22,7 +22,7 @@ def calibrate_support(checkpoint: str, tree: str, out: str, quantile: float = GU
     cams = list(reward.model.config.cameras)
     errors = {c: [] for c in cams}
     n = len(data.depth)
-    for start in tqdm(range(0, n, batch), desc="support: tree errors", unit="batch", disable=None):
+    for start in progress_bar(range(0, n, batch), desc="support: tree errors", unit="batch"):
         idx = torch.arange(start, min(start + batch, n))
         b = data.batch(idx)
         for c, e in image_errors(reward.model, b).items():

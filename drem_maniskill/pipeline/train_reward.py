@@ -21,12 +21,12 @@ from pathlib import Path
 from typing import Optional
 
 import torch
-from tqdm import tqdm
 
 from drem_maniskill.drem.checkpoint import save_checkpoint
 from drem_maniskill.drem.model import DREMModel, ModelConfig, cosine_distance
 from drem_maniskill.pipeline.dataset import TreeDataset
 from drem_maniskill.pipeline.losses import reconstruction_loss, triplet_loss
+from drem_maniskill.utils.progress import progress_bar
 from drem_maniskill.version import __version__
 
 
@@ -98,7 +98,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     writer = SummaryWriter(str(out / "tb"))
     goal = data.batch(torch.tensor([data.goal_index]))
     t0, seen = time.time(), 0
-    bar = tqdm(total=config.iterations, initial=step, desc="train reward", unit="it", disable=not progress)
+    bar = progress_bar(total=config.iterations, initial=step, desc="train reward", unit="it", enabled=progress)
     model.train()
     while step < config.iterations:
         a, b = data.sample_pairs(config.pairs_per_batch, config.eps, gen)

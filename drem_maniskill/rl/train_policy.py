@@ -36,6 +36,7 @@ from drem_maniskill.rl.rewards import reward_checkpoint, reward_spec
 from drem_maniskill.rl.run_env import make_eval_env, make_vec_env
 from drem_maniskill.rl.vec_env import SubprocDictVecEnv
 from drem_maniskill.utils.episodes import max_episode_steps
+from drem_maniskill.utils.progress import progress_bar
 
 EVAL_COLUMNS = ("steps", "success_rate", "mean_return", "wall_time")
 # Fields a resumed run may change; anything else must match the saved config.
@@ -138,11 +139,9 @@ class RunCallback(BaseCallback):
         return self.wall_offset + time.time() - self.t0
 
     def _on_training_start(self) -> None:
-        from tqdm.auto import tqdm
-
         self.t0 = time.time()
-        self.bar = tqdm(total=self.total, initial=self.num_timesteps, unit="step",
-                        desc=f"{self.config.algo.upper()} {self.config.task} {self.config.reward} seed{self.config.seed}")
+        self.bar = progress_bar(total=self.total, initial=self.num_timesteps, unit="step",
+                                desc=f"{self.config.algo.upper()} {self.config.task} {self.config.reward} seed{self.config.seed}")
         self.last_update = self.num_timesteps
         if not self.rows:
             self._evaluate()  # step 0: where every curve starts
