@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import importlib.util
+import json
 import re
 from pathlib import Path
 
@@ -66,3 +68,57 @@ def test_result_pictures_are_stored_once():
             twins.append((str(seen[digest].relative_to(ROOT)), str(png.relative_to(ROOT))))
         seen.setdefault(digest, png)
     assert not twins, f"the same picture twice (link to one instead): {twins}"
+
+
+def _quality_tables():
+    """``scripts/quality_tables.py`` as a module: the one writer of the model cards' measure tables."""
+    spec = importlib.util.spec_from_file_location("quality_tables", ROOT / "scripts" / "quality_tables.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _card_tables(text: str, header: str) -> list:
+    """The body rows of every table in ``text`` whose header line is ``header``."""
+    lines, out = text.split("\n"), []
+    for i, line in enumerate(lines):
+        if line.strip() == header:
+            rows = []
+            for body in lines[i + 2:]:
+                if not body.startswith("|"):
+                    break
+                rows.append(body.strip())
+            out.append(rows)
+    return out
+
+
+def _section(text: str, heading: str) -> str:
+    """The text of the ``## heading...`` section of a markdown file, up to the next ``## ``."""
+    start = text.index("\n## " + heading)
+    end = text.find("\n## ", start + 1)
+    return text[start:end if end >= 0 else len(text)]
+
+
+# The cards of our tasks, which ship a DREM and an image-only checkpoint, each examined.
+CARDS = sorted(p for p in (ROOT / "rewards").glob("*/MODEL_CARD.md") if (p.parent / "quality_image.json").exists())
+
+
+@pytest.mark.parametrize("card", CARDS, ids=lambda p: p.parent.name)
+def test_each_model_card_section_shows_the_measures_of_its_own_checkpoints_quality_file(card):
+    # Stop 29's USB card showed drem.pt's measures under the image-only heading: a table pasted from the wrong file.
+    qt = _quality_tables()
+    text = card.read_text()
+    quality = json.loads((card.parent / "quality.json").read_text())
+    image = json.loads((card.parent / "quality_image.json").read_text())
+    single = "| measure | value | target (issue 12) |"
+    side = "| measure | images + F/T | images only |"
+    checked = 0
+    for heading, q in (("Quality", quality), ("The image-only checkpoint", image)):
+        for rows in _card_tables(_section(text, heading), single):
+            assert rows == [f"| {a} | {b} | {c} |" for a, b, c in qt.measures(q)], (card, heading)
+            checked += 1
+    for rows in _card_tables(text, side):
+        want = [f"| {a} | {b} | {c} |" for (a, b, _), (_, c, _) in zip(qt.measures(quality), qt.measures(image))]
+        assert rows[:len(want)] == want, card
+        checked += 1
+    assert checked > 0, f"{card}: no measure table written by scripts/quality_tables.py"
