@@ -16,6 +16,15 @@ PRESETS = ("state", "light", "paper")
 LEARNABLE = dict(terminate_on_success=True, obs_norm=("state", "ft"), action_scale=0.5)
 
 
+def native_bf16() -> bool:
+    """Whether this CPU computes bfloat16 matrix products in hardware (AVX512-BF16 or AMX)."""
+    import torch
+
+    # Without them torch emulates bfloat16: the state preset's gradient step took 300 ms instead of 41 ms
+    # in float32 on an AVX2-only CPU (docs/rl.md, "Speed", stop 31). torch.cpu names these checks with an underscore.
+    return any(getattr(torch.cpu, name, lambda: False)() for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported"))
+
+
 @dataclass
 class RLConfig:
     """Everything a run needs; ``RLConfig.preset(name, **overrides)`` is the usual way to make one."""
@@ -60,8 +69,8 @@ class RLConfig:
     gradient_steps: int = 1
     gamma: float = 0.95  # 50-step episodes: an effective horizon of ~20 steps
     tau: float = 0.005
-    # SAC's gradient step under bfloat16 autocast (rl.sac.SAC.train_bf16): faster on CPUs with AVX512-BF16;
-    # on in the state preset, whose step is large matrix products (docs/rl.md, "Speed").
+    # SAC's gradient step under bfloat16 autocast (rl.sac.SAC.train_bf16): faster on CPUs with AVX512-BF16 or AMX,
+    # far slower without; on in the state preset where native_bf16(), its step being large matrix products (docs/rl.md, "Speed").
     train_bf16: bool = False
     # The training env in a child process, its step overlapped with the gradient step (rl.vec_env.SubprocDictVecEnv,
     # rl.sac.SAC.train_while_env_steps): each action comes from the policy one update older. Not with a reward that
@@ -106,8 +115,9 @@ class RLConfig:
                 shared_encoder=False,  # no camera to share; the comparison's runs were made with SB3's layout
                 # Since stop 18: the gradient step in bfloat16, overlapped with the env step in a child process
                 # (2 cores): within 2x of the env's own stepping, learning at the same steps (docs/rl.md, "Speed").
+                # bfloat16 only where the CPU has it in hardware (stop 31): emulated, it made the run 7x slower.
                 # The comparison's 30 runs were made before, in float32 and in one process (labelled so).
-                train_bf16=True, overlap_env=True,
+                train_bf16=native_bf16(), overlap_env=True,
             )
         elif name == "light":
             # Images on this CPU: the state preset's learnability settings, the env overlapped with the gradient

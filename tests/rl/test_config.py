@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from drem_maniskill.rl import RLConfig
 
 
@@ -129,3 +131,29 @@ def test_obs_norm_and_action_scale_reach_the_policy_and_the_controller():
         RLConfig.preset("state", obs_norm=("fixed_camera",))
     with pytest.raises(ValueError, match=r"action_scale must be in \(0, 1\]"):
         RLConfig.preset("state", action_scale=0)
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_state_preset_takes_bfloat16_only_where_the_cpu_has_it(monkeypatch, native):
+    """Emulated bfloat16 made the state preset 7x slower (docs/rl.md, "Speed"): the preset asks the CPU; --bf16 still decides."""
+    import drem_maniskill.rl.config as config_module
+
+    monkeypatch.setattr(config_module, "native_bf16", lambda: native)
+    assert RLConfig.preset("state").train_bf16 is native
+    assert RLConfig.preset("state", train_bf16=not native).train_bf16 is (not native)
+    assert RLConfig.preset("light").train_bf16 is False
+
+
+def test_native_bf16_reads_torchs_cpu_checks(monkeypatch):
+    """AVX512-BF16 or AMX counts; neither, or a torch without the checks, does not."""
+    import torch
+
+    from drem_maniskill.rl.config import native_bf16
+
+    for avx512, amx, expected in ((False, False, False), (True, False, True), (False, True, True)):
+        monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda v=avx512: v, raising=False)
+        monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda v=amx: v, raising=False)
+        assert native_bf16() is expected
+    monkeypatch.delattr(torch.cpu, "_is_avx512_bf16_supported")
+    monkeypatch.delattr(torch.cpu, "_is_amx_tile_supported")
+    assert native_bf16() is False
