@@ -115,7 +115,7 @@ class RLConfig:
                 shared_encoder=False,  # no camera to share; the comparison's runs were made with SB3's layout
                 # Since stop 18: the gradient step in bfloat16, overlapped with the env step in a child process
                 # (2 cores): within 2x of the env's own stepping, learning at the same steps (docs/rl.md, "Speed").
-                # bfloat16 only where the CPU has it in hardware (stop 31): emulated, it made the run 7x slower.
+                # bfloat16 only where the CPU has it in hardware (stop 31): emulated, it made the run 6.5-6.9x slower.
                 # The comparison's 30 runs were made before, in float32 and in one process (labelled so).
                 train_bf16=native_bf16(), overlap_env=True,
             )

@@ -135,7 +135,7 @@ def test_obs_norm_and_action_scale_reach_the_policy_and_the_controller():
 
 @pytest.mark.parametrize("native", [True, False])
 def test_state_preset_takes_bfloat16_only_where_the_cpu_has_it(monkeypatch, native):
-    """Emulated bfloat16 made the state preset 7x slower (docs/rl.md, "Speed"): the preset asks the CPU; --bf16 still decides."""
+    """Emulated bfloat16 made the state preset 6.5-6.9x slower (docs/rl.md, "Speed"): the preset asks the CPU; --bf16 still decides."""
     import drem_maniskill.rl.config as config_module
 
     monkeypatch.setattr(config_module, "native_bf16", lambda: native)
