@@ -377,7 +377,8 @@ def report(results: dict) -> str:
 
 def parse_args(argv: Optional[list[str]] = None) -> argparse.Namespace:
     """Command-line options."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--steps", type=int, default=50, help="timed captures per env (median reported)")
     p.add_argument("--warmup", type=int, default=5, help="untimed captures per env first")
     p.add_argument("--sps-steps", type=int, default=100, help="timed env.step calls per env for steps/s")

@@ -10,18 +10,20 @@ ratio: ``train_freq``, ``gradient_steps``). The reward's cost is measured two wa
   ``reward_mode="none"`` (this carries about 0.5 ms of noise per step, see docs/drem.md).
 
 ``x_env`` is the run's wall time over the plain env's own stepping (``gym.make(task, obs_mode="rgb",
-reward_mode="none")``, random actions, measured in the same run): issue 13's targets are 2x for the
+reward_mode="none")``, random actions, measured in the same run): the targets are 2x for the
 ``state`` preset with the drem reward and 3x for ``light``. ``grad_ms`` is SAC's gradient step
 (SB3's ``train``), per env step. A run with ``overlap_env`` (``overlapped``) steps its env in a child
 process while the gradient step runs, as ``train-policy`` does: its reward and step-difference columns
 are measured in the child.
 
     .venv/bin/python bench/sac_speed.py                          # light preset, every reward
-    .venv/bin/python bench/sac_speed.py --presets state light --rewards drem  # issue 13's two ratios
+    .venv/bin/python bench/sac_speed.py --presets state light --rewards drem  # the two targeted ratios
     .venv/bin/python bench/sac_speed.py --presets light paper --paper-steps 20
     .venv/bin/python bench/sac_speed.py --rewards drem --encoders separate shared   # rl.sac's shared encoder
-    .venv/bin/python bench/sac_speed.py --presets state light --rewards drem --variants preset train_freq=4 net_arch=128+128,batch_size=128
-    .venv/bin/python bench/sac_speed.py --presets state --rewards drem --variants preset overlap_env=0 overlap_env=0,train_bf16=0
+    .venv/bin/python bench/sac_speed.py --presets state light --rewards drem \
+        --variants preset train_freq=4 net_arch=128+128,batch_size=128
+    .venv/bin/python bench/sac_speed.py --presets state --rewards drem \
+        --variants preset overlap_env=0 overlap_env=0,train_bf16=0
 """
 
 from __future__ import annotations
@@ -228,7 +230,8 @@ def main(argv=None) -> int:
           f"torch threads {torch.get_num_threads()}, load average {load:.2f}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(dict(rows=rows, load_average=load, task=args.task, plain_env_ms=plain_ms), indent=2) + "\n")
+    summary = dict(rows=rows, load_average=load, task=args.task, plain_env_ms=plain_ms)
+    out.write_text(json.dumps(summary, indent=2) + "\n")
     print(f"written: {out}")
     return 0
 

@@ -1,11 +1,11 @@
 """How much of a reward's rise is left on the socket's face, by distance from the opening: the measure of the face trap.
 
-    .venv/bin/python scripts/face_profile.py --task USBInsertion-v1 \
+    .venv/bin/python experiments/face_profile.py --task USBInsertion-v1 \
         --checkpoint drem=rewards/USBInsertion-v1/drem.pt --checkpoint drem-image=rewards/USBInsertion-v1/drem_image.pt \
         --out docs/results/face_profile/USBInsertion-v1.json --plot docs/images/results/face_profile_USBInsertion-v1.png
 
 SAC trained on a reward that pays the part pressed on the face beside the opening nearly what it
-pays an insertion stops on the face (docs/results.md, section 2). The examination's one "pressed
+pays an insertion stops on the face (docs/results.md). The examination's one "pressed
 3 mm beside" position says that the face is over-paid, not whether the reward still leads along
 the face to the opening, which is what a policy on the face needs. This holds the tip (upright,
 ``HoldPolicy``) pressed on the face and 2 mm above it at growing distances from the axis, in two

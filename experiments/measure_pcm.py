@@ -12,7 +12,7 @@ compares the result with the episode's own next state: the tip's position and th
 It also replays each step twice with PCM on after different siblings: how much the result
 depends on the sibling. Writes a JSON of the numbers.
 
-Run: .venv/bin/python scripts/measure_pcm.py [--seeds 4] [--out outputs/pcm/pcm.json]
+Run: .venv/bin/python experiments/measure_pcm.py [--seeds 4] [--out outputs/pcm/pcm.json]
 """
 
 from __future__ import annotations

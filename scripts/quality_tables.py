@@ -1,8 +1,9 @@
 """Markdown tables of an examination's ``quality.json`` (and an image-only one beside it), for model cards and docs.
 
-    .venv/bin/python scripts/quality_tables.py rewards/PegInHole-v1/quality.json [rewards/PegInHole-v1/quality_image.json]
+    .venv/bin/python scripts/quality_tables.py QUALITY_JSON [IMAGE_ONLY_QUALITY_JSON]
+    (e.g. rewards/PegInHole-v1/quality.json rewards/PegInHole-v1/quality_image.json)
 
-Prints the measures against issue 12's targets, the held positions, and with a second file the
+Prints the measures against their targets, the held positions, and with a second file the
 two checkpoints side by side. The numbers are read, never typed.
 """
 
@@ -26,7 +27,8 @@ def measures(q: dict) -> list:
         ("Random policy mean reward", _f(q["random_mean_reward"]), "<= 0.1"),
         (f"contact plateau: Align Success from first contact to insertion, over Direct Success's final "
          f"({plateau.get('episodes')} episodes)",
-         f"{_f(plateau.get('fraction'))} ({_f(plateau.get('mean_reward'))} / {_f(plateau.get('direct_success_final'))})", "<= 0.6"),
+         f"{_f(plateau.get('fraction'))} "
+         f"({_f(plateau.get('mean_reward'))} / {_f(plateau.get('direct_success_final'))})", "<= 0.6"),
         (f"Search Fail 1 / 3 steps after it first loses contact ({loss.get('episodes_with_loss')} episodes)",
          f"{_f(loss.get('after_1'))} / {_f(loss.get('after_3'))}", "<= 0.1 at 3"),
         ("colour spread: the largest standard deviation over episodes at a held position above the opening",
@@ -44,7 +46,7 @@ def measures(q: dict) -> list:
 
 def tables(q: dict, image: dict | None = None) -> str:
     """The markdown."""
-    out = ["| measure | value | target (issue 12) |", "| --- | --- | --- |"]
+    out = ["| measure | value | target |", "| --- | --- | --- |"]
     out += [f"| {a} | {b} | {c} |" for a, b, c in measures(q)]
     out += ["", "| where the tip is held | mean | std |", "| --- | --- | --- |"]
     for k, v in q.get("held_positions", {}).items():

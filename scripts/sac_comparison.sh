@@ -6,9 +6,10 @@
 #   defaults: PegInHole-v1 1500 "0 1 2" sparse engineered vice drem-image drem
 #   env: OUT (outputs/rl), PARALLEL (2), PRESET (light), and EVAL_EVERY, EVAL_EPISODES,
 #   LEARNING_STARTS (default: the preset's own), EXTRA (more train-policy options)
-#   issue 13's comparison: PRESET=state bash scripts/sac_comparison.sh PegInHole-v1 50000
-#   (its runs were made before stop 18: EXTRA="--no-bf16 --no-overlap-env" redoes them as they were)
-#   issue 13's light runs: bash scripts/sac_comparison.sh PegInHole-v1 40000 "0 1 2" sparse engineered drem
+#   the state-preset comparison of docs/results.md (its runs train in float32 with the env in the
+#   training process, hence EXTRA), for each of PegInHole-v1 and USBInsertion-v1:
+#     EXTRA="--no-bf16 --no-overlap-env" PRESET=state bash scripts/sac_comparison.sh PegInHole-v1 50000
+#   the light-preset runs: bash scripts/sac_comparison.sh PegInHole-v1 40000 "0 1 2" sparse engineered drem
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 TASK=${1:-PegInHole-v1}

@@ -61,7 +61,8 @@ def test_adding_a_task(new_task, tmp_path, monkeypatch):
 
     # Step 3, its data: without rewards/<id>/drem.pt the drem mode names the missing file ...
     monkeypatch.setattr(checkpoints, "REWARDS_DIRS", (tmp_path / "rewards",))
-    with pytest.raises(checkpoints.CheckpointError, match=r"no DREM checkpoint ships for WidePegInHole-v1.*train-reward"):
+    missing = r"no DREM checkpoint ships for WidePegInHole-v1.*train-reward"
+    with pytest.raises(checkpoints.CheckpointError, match=missing):
         gym.make(NEW_TASK, reward_mode="drem")
     # ... and with it, the alias rewards with it by default.
     tiny_checkpoint(tmp_path / "rewards" / NEW_TASK / "drem.pt", NEW_TASK)
@@ -82,7 +83,8 @@ def test_adding_a_task(new_task, tmp_path, monkeypatch):
 
 
 def test_adding_a_reward(monkeypatch):
-    monkeypatch.setitem(REWARDS, "dense-raw", RewardSpec("the task's staged dense reward, 0-6", env_reward_mode("dense")))
+    spec = RewardSpec("the task's staged dense reward, 0-6", env_reward_mode("dense"))
+    monkeypatch.setitem(REWARDS, "dense-raw", spec)
     assert reward_spec("dense-raw").supports("PegInHole-v1") and not reward_spec("dense-raw").supports("PlugCharger-v1")
     env, learned = make_env(RLConfig.preset("light", task="PegInHole-v1", reward="dense-raw"), for_eval=True)
     try:
@@ -97,7 +99,8 @@ def test_adding_a_reward(monkeypatch):
 
 def build_td3(config, venv):
     """The docs' TD3 builder."""
-    return TD3("MultiInputPolicy", venv, learning_rate=config.learning_rate, buffer_size=min(config.buffer_size, config.steps),
+    return TD3("MultiInputPolicy", venv, learning_rate=config.learning_rate,
+               buffer_size=min(config.buffer_size, config.steps),
                batch_size=config.batch_size, learning_starts=config.learning_starts, gamma=config.gamma,
                seed=config.seed, device=config.device, policy_kwargs=policy_kwargs(config))
 

@@ -73,7 +73,8 @@ def test_run_script_sets_argv_main_and_the_scripts_folder_then_restores_them(tmp
 
 
 def test_run_module_runs_a_module_as_main(tmp_path, capsys, monkeypatch):
-    (tmp_path / "echo_module.py").write_text(ECHO.replace("import helper_beside_the_script", "import types; helper_beside_the_script = types.SimpleNamespace(VALUE=7)"))
+    stand_in = "import types; helper_beside_the_script = types.SimpleNamespace(VALUE=7)"
+    (tmp_path / "echo_module.py").write_text(ECHO.replace("import helper_beside_the_script", stand_in))
     monkeypatch.syspath_prepend(str(tmp_path))
     assert main(["run-script", "-m", "echo_module", "--", "-e", "PegInHole-DREM-v1"]) == 0
     assert "argv ['-e', 'PegInHole-DREM-v1'] name __main__ helper 7" in capsys.readouterr().out
@@ -85,9 +86,11 @@ def test_run_module_runs_a_module_as_main(tmp_path, capsys, monkeypatch):
 def test_launcher_runs_a_script_that_knows_only_maniskill(tmp_path):
     script = tmp_path / "stand_in.py"
     script.write_text(STAND_IN)
-    plain = subprocess.run([sys.executable, str(script), "--env_id", "PegInHole-DREM-v1"], capture_output=True, text=True)
+    plain = subprocess.run([sys.executable, str(script), "--env_id", "PegInHole-DREM-v1"],
+                           capture_output=True, text=True)
     assert plain.returncode != 0 and "PegInHole-DREM" in plain.stderr  # ManiSkill alone does not know our ids
-    out = subprocess.run([str(BIN), "run-script", str(script), "--", "--env_id", "PegInHole-DREM-v1", "--steps", "3", "--forkserver"],
+    out = subprocess.run([str(BIN), "run-script", str(script), "--",
+                          "--env_id", "PegInHole-DREM-v1", "--steps", "3", "--forkserver"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "__name__=__main__ reward_mode=drem" in out.stdout and "success=False" in out.stdout

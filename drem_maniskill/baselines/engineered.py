@@ -28,7 +28,8 @@ DEFAULT_KAPPA = 10.0
 ROT_WEIGHT = 0.1
 
 
-def pose_distance(pos: torch.Tensor, goal_pos: torch.Tensor, rot_error: torch.Tensor, rot_weight: float = ROT_WEIGHT) -> torch.Tensor:
+def pose_distance(pos: torch.Tensor, goal_pos: torch.Tensor, rot_error: torch.Tensor,
+                  rot_weight: float = ROT_WEIGHT) -> torch.Tensor:
     """``||pos - goal_pos||_2 + rot_weight * rot_error``, batched: ``[B, 3], [B or 1, 3], [B] -> [B]``."""
     return torch.linalg.norm(pos - goal_pos, dim=-1) + rot_weight * rot_error
 

@@ -66,7 +66,7 @@ class VICEConfig:
     batch_size: int = 128  # positives and negatives each, per gradient step (ref classifier_batch_size)
     mixup_alpha: float = 1.0  # ref mixup_alpha: mixup on images and labels, Beta(1, 1)
     # Gradient steps per update: the ref's 10 per 1000 env steps give 1,500 over the paper's 150k-step
-    # runs; ours are 50k steps (issue 13), so 30 per 1000 give the classifier those same 1,500.
+    # runs; ours are 50k steps (the SAC comparison), so 30 per 1000 give the classifier those same 1,500.
     train_steps: int = 30
     update_every: int = 1000  # env steps between updates, for the trainer (ref epoch_length)
     query_every: int = 30  # gradient steps between active-query rounds: once per update, as once per ref epoch
@@ -206,7 +206,8 @@ class VICERewardWrapper(gym.Wrapper):
         if self.num_goal_examples == 0:
             raise ValueError("VICE needs at least one goal example")
         c = 3 * len(cfg.cameras)
-        self.buffer_images = torch.zeros(cfg.buffer_size, c, cfg.image_size, cfg.image_size, dtype=torch.uint8, device=self.device)
+        self.buffer_images = torch.zeros(cfg.buffer_size, c, cfg.image_size, cfg.image_size, dtype=torch.uint8,
+                                         device=self.device)
         self.buffer_success = torch.zeros(cfg.buffer_size, dtype=torch.bool, device=self.device)
         self.num_added = 0  # visited states ever added; the ring position is num_added % buffer_size
         self.query_mark = 0  # num_added at the last query round: candidates are the states since
@@ -262,7 +263,8 @@ class VICERewardWrapper(gym.Wrapper):
         if cfg.mixup_alpha > 0:
             # Mixup (ref): convex blends of pairs, images and labels alike, smooth the classifier
             # so its log-probability keeps a slope between the goal and the visited states.
-            lam = torch.as_tensor(self.rng.beta(cfg.mixup_alpha, cfg.mixup_alpha, 2 * b), dtype=torch.float32, device=self.device)
+            lam = torch.as_tensor(self.rng.beta(cfg.mixup_alpha, cfg.mixup_alpha, 2 * b), dtype=torch.float32,
+                                  device=self.device)
             perm = torch.as_tensor(self.rng.permutation(2 * b), device=self.device)
             x = lam[:, None, None, None] * x + (1 - lam[:, None, None, None]) * x[perm]
             y = lam * y + (1 - lam) * y[perm]
@@ -290,7 +292,10 @@ class VICERewardWrapper(gym.Wrapper):
         return dict(queried=len(top), added=len(true))
 
     def update(self, num_steps: Optional[int] = None) -> dict:
-        """Train the classifier ``num_steps`` gradient steps (default ``config.train_steps``); queries on schedule; metrics."""
+        """Train the classifier ``num_steps`` gradient steps (default ``config.train_steps``).
+
+        Active queries run on their schedule; returns the metrics.
+        """
         cfg = self.config
         num_steps = cfg.train_steps if num_steps is None else int(num_steps)
         metrics = dict(num_visited=self.num_visited)
@@ -345,7 +350,8 @@ class VICERewardWrapper(gym.Wrapper):
         saved = VICEConfig.from_dict(state["config"])
         for key in ("cameras", "image_size", "channels", "feature_dim", "hidden_dim", "buffer_size"):
             if getattr(saved, key) != getattr(self.config, key):
-                raise ValueError(f"VICE state has {key}={getattr(saved, key)!r}, this wrapper {getattr(self.config, key)!r}")
+                raise ValueError(f"VICE state has {key}={getattr(saved, key)!r}, "
+                                 f"this wrapper {getattr(self.config, key)!r}")
         self.classifier.load_state_dict(state["classifier"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.positives = state["positives"].to(self.device)

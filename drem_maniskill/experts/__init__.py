@@ -11,6 +11,7 @@ from drem_maniskill.experts.rollout import Episode, collect_goal_examples, rollo
 from drem_maniskill.experts.scripted import POLICY_NAMES
 from drem_maniskill.utils.episodes import episode_horizon
 
-__all__ = ["Episode", "NOISY_EXPERT_SIGMA", "POLICY_NAMES", "RecordResult", "STOCK_POLICY_NAMES", "collect_goal_examples",
-           "ee_control_kwargs", "episode_horizon", "get_policy", "record_expert", "require_ee_control", "rollout",
+__all__ = ["Episode", "NOISY_EXPERT_SIGMA", "POLICY_NAMES", "RecordResult", "STOCK_POLICY_NAMES",
+           "collect_goal_examples", "ee_control_kwargs", "episode_horizon", "get_policy", "record_expert",
+           "require_ee_control", "rollout",
            "success_rate"]

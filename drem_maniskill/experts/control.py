@@ -21,4 +21,5 @@ def require_ee_control(env, who: str = "scripted policies") -> None:
     """ValueError naming the fix unless ``env`` runs ManiSkill's ``pd_ee_delta_pose`` controller."""
     mode = env.unwrapped.control_mode
     if mode != "pd_ee_delta_pose":
-        raise ValueError(f"{who} command end-effector deltas; make the env with control_mode='pd_ee_delta_pose' (got {mode!r})")
+        raise ValueError(f"{who} command end-effector deltas; make the env with control_mode='pd_ee_delta_pose' "
+                         f"(got {mode!r})")

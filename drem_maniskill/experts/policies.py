@@ -38,7 +38,8 @@ def get_policy(name: str, env, seed: int = 0) -> Callable:
                 noise = NOISY_EXPERT_SIGMA if name == "noisy_expert" else 0.0
                 return get_stock_expert(env, seed=seed, action_noise=noise)
             raise ValueError(
-                f"no scripted expert for {env.unwrapped.spec.id} (experts ship for our tasks and {sorted(STOCK_EXPERTS)}); "
+                f"no scripted expert for {env.unwrapped.spec.id} "
+                f"(experts ship for our tasks and {sorted(STOCK_EXPERTS)}); "
                 "record your own demo with ManiSkill's RecordEpisode (obs_mode='rgb', record_env_state=True) "
                 "and pass it to `drem-maniskill sample`"
             )

@@ -76,14 +76,16 @@ def record_expert(
         elif policy == "expert" and isinstance(env.unwrapped, InsertionEnv):
             pi = ExpertPolicy(env, seed=first, descent_step=descent_step, descend_from=descend_from)
         else:
-            raise ValueError(f"descent_step and descend_from set the expert of our insertion tasks, not {policy!r} on {env_id}")
+            raise ValueError(f"descent_step and descend_from set the expert of our insertion tasks, "
+                             f"not {policy!r} on {env_id}")
     except Exception:
         env.close()
         raise
     horizon = max_steps or episode_horizon(env)
     result = RecordResult(h5_path=str(out / f"{name}.h5"), json_path=str(out / f"{name}.json"))
     try:
-        for seed in progress_bar(list(seeds), desc=f"record {getattr(policy, '__name__', policy)} on {env_id}", unit="episode"):
+        desc = f"record {getattr(policy, '__name__', policy)} on {env_id}"
+        for seed in progress_bar(list(seeds), desc=desc, unit="episode"):
             ep = rollout(env, pi, int(seed), horizon)
             env.flush_trajectory()
             if save_video:

@@ -100,7 +100,8 @@ class ScriptedPolicy:
         # Approach-axis force in the hand frame (z points down the gripper).
         return rel.p, _yaw_error(self.env), ft[:, 2].abs()
 
-    def move(self, target_in_socket: torch.Tensor, speed: float = 1.0, turn: Optional[torch.Tensor] = None) -> torch.Tensor:
+    def move(self, target_in_socket: torch.Tensor, speed: float = 1.0,
+             turn: Optional[torch.Tensor] = None) -> torch.Tensor:
         """Action moving the tip towards ``target_in_socket`` ``[B, 3]`` (socket frame), upright, or turned by ``turn``.
 
         The default controller moves relative to the *current* pose, so contact torques would
@@ -144,7 +145,8 @@ class ExpertPolicy(ScriptedPolicy):
         if descent_step is not None:
             # A slower descent gives the tree more depths inside the hole (record-expert --descent-step).
             if not 0 < descent_step <= 0.02:
-                raise ValueError(f"descent_step is metres per step in (0, 0.02] (the controller's range), got {descent_step}")
+                raise ValueError("descent_step is metres per step in (0, 0.02] (the controller's range), "
+                                 f"got {descent_step}")
             self.descent_step = float(descent_step)
         if descend_from is not None:
             # The expert usually aligns 2-3 cm above the opening and then crawls down at the entry step from there,
@@ -164,7 +166,8 @@ class ExpertPolicy(ScriptedPolicy):
         self.phase = torch.where(aligned | (tip[:, 2] < 0), torch.ones_like(self.phase), self.phase)
         target = torch.zeros_like(tip)
         # The entry is never faster than the descent: a descent_step below fine_step slows the whole insertion.
-        step = torch.where(tip[:, 2] > -self.fine_depth, torch.full_like(tip[:, 2], min(self.fine_step, self.descent_step)),
+        step = torch.where(tip[:, 2] > -self.fine_depth,
+                           torch.full_like(tip[:, 2], min(self.fine_step, self.descent_step)),
                            torch.full_like(tip[:, 2], self.descent_step))
         # A descend_from below the pre-insertion point is approached instead, or the expert would stop short of it.
         approach = self.pre_height if self.descend_from is None else min(self.pre_height, self.descend_from)
@@ -172,7 +175,8 @@ class ExpertPolicy(ScriptedPolicy):
         action = self.move(target, speed=0.5)
         # The last centimetre of the approach at fine_speed (per env: move() takes one speed).
         slow = (self.phase == 0) & ((tip - target).norm(dim=1) < self.fine_radius)
-        action[:, :3] = torch.where(slow[:, None], action[:, :3].clamp(-self.fine_speed, self.fine_speed), action[:, :3])
+        action[:, :3] = torch.where(slow[:, None], action[:, :3].clamp(-self.fine_speed, self.fine_speed),
+                                    action[:, :3])
         return action
 
 

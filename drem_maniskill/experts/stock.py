@@ -113,7 +113,8 @@ class _StockExpert:
     def act(self) -> torch.Tensor:
         raise NotImplementedError
 
-    def servo(self, target: Pose, gripper: torch.Tensor, speed: float = 1.0, integral: torch.Tensor | None = None) -> torch.Tensor:
+    def servo(self, target: Pose, gripper: torch.Tensor, speed: float = 1.0,
+              integral: torch.Tensor | None = None) -> torch.Tensor:
         """Action moving the TCP towards ``target`` (world frame): the whole error per step, capped.
 
         The translation is scaled (not clipped per axis) so the TCP moves in a straight line.
@@ -174,7 +175,8 @@ class _StockExpert:
         return (torch.full((self.n,), GRIPPER_OPEN, device=self.device),
                 torch.full((self.n,), GRIPPER_CLOSED, device=self.device))
 
-    def advance_grasp(self, above: Pose, grasp: Pose, above_rot_tol: float, grasp_pos_tol: float, grasp_timeout: int) -> None:
+    def advance_grasp(self, above: Pose, grasp: Pose, above_rot_tol: float, grasp_pos_tol: float,
+                      grasp_timeout: int) -> None:
         """The grasp phases every stock expert shares: 0 reach ``above`` the grasp, 1 descend to it, 2 close, 3 lift."""
         tcp = self.env.agent.tcp.pose
         pe, re = self.pose_error(above, tcp)

@@ -119,7 +119,8 @@ def test_vice_state_dict_round_trip(tmp_path):
     assert torch.equal(w.classifier.log_prob(x), w2.classifier.log_prob(x))
     assert torch.equal(w.positives, w2.positives) and torch.equal(w.buffer_images, w2.buffer_images)
     assert torch.equal(w.buffer_success, w2.buffer_success)
-    assert (w.num_added, w.query_mark, w.grad_steps, w.queries_used) == (w2.num_added, w2.query_mark, w2.grad_steps, w2.queries_used)
+    counters = ("num_added", "query_mark", "grad_steps", "queries_used")
+    assert [getattr(w, c) for c in counters] == [getattr(w2, c) for c in counters]
     # Resumed training continues exactly as the original would.
     assert w.update(3) == w2.update(3)
     assert torch.equal(w.classifier.log_prob(x), w2.classifier.log_prob(x))

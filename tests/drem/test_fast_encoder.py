@@ -52,7 +52,8 @@ def test_128_px_images_are_area_downscaled_to_the_model_size(shipped):
     inputs = _random_batch(2, 128, seed=5)
     # What prepare documents: area interpolation of the [0, 1] floats to 64 px.
     small = {
-        c: F.interpolate(inputs[c].permute(0, 3, 1, 2).float() / 255.0, size=(64, 64), mode="area") for c in ("fixed", "wrist")
+        c: F.interpolate(inputs[c].permute(0, 3, 1, 2).float() / 255.0, size=(64, 64), mode="area")
+        for c in ("fixed", "wrist")
     }
     small["ft"] = inputs["ft"] / shipped.model.ft_scale
     with torch.no_grad():
@@ -118,7 +119,8 @@ def test_rgb_views_of_rgba_images_as_cameras_give_them(shipped, channels):
     # ManiSkill's camera rgb is rgba[..., :3]: the fast path reads the RGBA block and drops alpha.
     gen = torch.Generator().manual_seed(11)
     for batch in (1, 3):
-        rgba = {c: torch.randint(0, 256, (batch, 128, 128, 4), dtype=torch.uint8, generator=gen) for c in ("fixed", "wrist")}
+        rgba = {c: torch.randint(0, 256, (batch, 128, 128, 4), dtype=torch.uint8, generator=gen)
+                for c in ("fixed", "wrist")}
         views = {c: rgba[c][..., channels] for c in rgba} | {"ft": torch.randn(batch, 8, 6, generator=gen)}
         copies = {c: v.contiguous() for c, v in views.items()}
         assert not views["fixed"].is_contiguous()

@@ -25,7 +25,8 @@ def test_support_guard_scales_the_drem_reward_by_its_weight(tmp_path):
     ckpt = tiny_checkpoint(tmp_path / "tiny.pt", "PegInHole-v1")
     action = torch.tensor([[0.3, -0.2, -0.5, 0.0, 0.0, 0.1]])
     rewards = {}
-    for name, tau in [("plain", None), ("wide", {"fixed": 10.0, "wrist": 10.0}), ("tight", {"fixed": 1e-6, "wrist": 1e-6})]:
+    taus = [("plain", None), ("wide", {"fixed": 10.0, "wrist": 10.0}), ("tight", {"fixed": 1e-6, "wrist": 1e-6})]
+    for name, tau in taus:
         env = gym.make("PegInHole-v1", obs_mode="state_dict", reward_mode="drem", drem_checkpoint=str(ckpt))
         env = env if tau is None else SupportGuard(env, tau)
         env.reset(seed=2)

@@ -36,8 +36,12 @@ def test_model_shapes(modalities):
 def test_model_resizes_other_image_sizes():
     model = DREMModel(ModelConfig(image_size=64)).eval()
     big = _batch(2, size=128)
-    small = {k: (torch.nn.functional.interpolate(v.permute(0, 3, 1, 2).float(), size=(64, 64), mode="area").round().to(torch.uint8).permute(0, 2, 3, 1)
-                 if k != "ft" else v) for k, v in big.items()}
+
+    def area(v):
+        shrunk = torch.nn.functional.interpolate(v.permute(0, 3, 1, 2).float(), size=(64, 64), mode="area")
+        return shrunk.round().to(torch.uint8).permute(0, 2, 3, 1)
+
+    small = {k: (area(v) if k != "ft" else v) for k, v in big.items()}
     with torch.no_grad():
         h_big = model.encode(model.prepare(big))
         h_small = model.encode(model.prepare(small))

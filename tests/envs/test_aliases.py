@@ -77,13 +77,14 @@ def test_register_drem_env_on_a_stock_task(tmp_path):
     assert gym.spec(env_id).max_episode_steps == gym.spec(STOCK).max_episode_steps
     alias = ManiSkillVectorEnv(gym.make(env_id, obs_mode="state"), auto_reset=False, ignore_terminations=True)
     # The id pays R - 1 (drem_form "shifted"), as the wrapper does with form="shifted".
-    wrapped = DREMRewardWrapper(gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose", reward_mode="dense"), ckpt,
-                                form="shifted")
+    dense = gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose", reward_mode="dense")
+    wrapped = DREMRewardWrapper(dense, ckpt, form="shifted")
     alias_dense = gym.make(env_id, obs_mode="state", reward_mode="dense")
     try:
         u = alias.unwrapped
         # The registration's kwargs are defaults of the new id; DREM is the default reward.
-        assert u.reward_mode == "drem" and u.control_mode == "pd_ee_delta_pose" and alias_dense.unwrapped.reward_mode == "dense"
+        assert u.reward_mode == "drem" and u.control_mode == "pd_ee_delta_pose"
+        assert alias_dense.unwrapped.reward_mode == "dense"
         action = torch.tensor([[0.3, 0.0, -0.3, 0.0, 0.0, 0.0, 1.0]])
         for env in (alias, wrapped, alias_dense):
             env.reset(seed=2)
@@ -93,7 +94,8 @@ def test_register_drem_env_on_a_stock_task(tmp_path):
             _, r_dense, _, _, i_dense = alias_dense.step(action)
             # DREM through the id equals DREM through the wrapper; success is the task's own.
             torch.testing.assert_close(r_alias.float(), r_wrapped.float(), atol=1e-5, rtol=1e-5)
-            assert torch.equal(i_alias["success"], i_wrapped["success"]) and torch.equal(i_dense["success"], i_wrapped["success"])
+            assert torch.equal(i_alias["success"], i_wrapped["success"])
+            assert torch.equal(i_dense["success"], i_wrapped["success"])
             # Other reward modes are the stock task's, untouched.
             torch.testing.assert_close(r_dense, i_wrapped["original_reward"])
             assert not torch.allclose(r_alias.float(), r_dense.float())
@@ -115,7 +117,8 @@ def test_register_drem_env_rejects_what_does_not_fit(tmp_path):
     )
 
     header, weights = load_checkpoint(ckpt)
-    bad = save_checkpoint(str(tmp_path / "bad.pt"), {**header, "camera_uids": ["base_camera", "no_such_camera"]}, weights)
+    bad_header = {**header, "camera_uids": ["base_camera", "no_such_camera"]}
+    bad = save_checkpoint(str(tmp_path / "bad.pt"), bad_header, weights)
     env_id = register_drem_env(STOCK, bad, new_env_id="PegInsertionSide-BadDREM-v1")
     with pytest.raises(CheckpointError, match="no_such_camera"):
         gym.make(env_id, obs_mode="state")

@@ -91,7 +91,8 @@ def test_gpu_sim_benchmark_on_the_drem_alias_runs_with_drem(tmp_path):
         gpu_sim.main(tyro.cli(gpu_sim.Args, args=sys.argv[1:]))
         """
     )
-    proc = run_subprocess(["-c", code, "-e", "drem_maniskill:PegInHole-DREM-v1", "--cpu-sim", "-n", "1", "-o", "state"], cwd=tmp_path)
+    proc = run_subprocess(["-c", code, "-e", "drem_maniskill:PegInHole-DREM-v1", "--cpu-sim", "-n", "1", "-o", "state"],
+                          cwd=tmp_path)
     assert proc.returncode == 0, fail_msg(proc)
     assert "made PegInHole-DREM-v1 reward_mode drem" in proc.stdout, fail_msg(proc)
     assert _FPS.search(proc.stdout), fail_msg(proc)

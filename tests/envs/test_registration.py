@@ -50,7 +50,7 @@ def test_gym_make_module_prefixed_id_in_fresh_process(tmp_path):
     )
     proc = run_subprocess(["-c", code], cwd=tmp_path)
     assert proc.returncode == 0, fail_msg(proc)
-    line = next(l for l in proc.stdout.splitlines() if l.startswith("RESULT="))
+    line = next(out for out in proc.stdout.splitlines() if out.startswith("RESULT="))
     res = json.loads(line[len("RESULT="):])
     assert res["cls"] == "PegInHoleEnv"
     assert res["module"] == "drem_maniskill.envs.peg_in_hole"

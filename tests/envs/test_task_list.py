@@ -70,6 +70,6 @@ def test_the_wheels_data_files_are_the_rewards_folder():
 
 
 def test_the_stock_checkpoints_are_for_maniskills_own_tasks():
-    """rewards/ folders that are not in TASKS are ManiSkill tasks of their own (with a shipped image-only checkpoint)."""
+    """rewards/ folders not in TASKS are ManiSkill tasks of their own (with a shipped image-only checkpoint)."""
     for task in {p.name for p in (ROOT / "rewards").iterdir() if p.is_dir()} - set(TASKS):
         assert task in REGISTERED_ENVS and not is_insertion_task(task)

@@ -293,7 +293,8 @@ def test_usb_enters_only_one_way_up():
 
             from drem_maniskill.envs.insertion_base import _yaw_quat
 
-            u.socket.set_pose(Pose.create_from_pq(pose.p, quaternion_multiply(_yaw_quat(torch.tensor([math.pi])), pose.q)))
+            turned = quaternion_multiply(_yaw_quat(torch.tensor([math.pi])), pose.q)
+            u.socket.set_pose(Pose.create_from_pq(pose.p, turned))
             u.yaw_symmetry = 2
         from drem_maniskill.experts import get_policy
 

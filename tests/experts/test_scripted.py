@@ -51,13 +51,13 @@ def test_a_hold_pushed_against_the_blocks_side_presses_it_sideways_and_down_wher
     assert abs(path[-1, 0] + side) < 5e-4  # the shell against the block's side, not through it
     assert abs(path[-1, 2] + SIDE_DOWN) < 1e-3  # the overmould (12 mm above the tip) on the block's top edge
     force = env.unwrapped.ft.buffer[0, -1, :3].cpu().numpy()
-    assert force[0] > 20 and force[2] < -20  # pressed into the side and down, as the SAC policy did
+    assert force[0] > 20 and force[2] < -20  # into the side and down, as a policy stuck beside the block presses
 
 
 @pytest.mark.parametrize("task", TASKS)
 def test_a_turned_hold_holds_the_part_turned_and_tilted_where_an_upright_one_holds_it_upright(task):
-    """``HoldPolicy(turn=)``: the tip where asked, turned about its axis and tilted as asked (as the success test measures
-    them); a round part is only tilted, since it has no turn about its axis to hold."""
+    """``HoldPolicy(turn=)``: the tip where asked, turned about its axis and tilted as asked (as the success test
+    measures them); a round part is only tilted, since it has no turn about its axis to hold."""
     import numpy as np
 
     from drem_maniskill.experts.scripted import HoldPolicy

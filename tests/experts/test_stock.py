@@ -76,8 +76,9 @@ def test_scripted_success_command_on_a_stock_task():
     import subprocess
     import sys
 
-    proc = subprocess.run([sys.executable, "-m", "drem_maniskill.cli", "scripted-success", "--task", "PegInsertionSide-v1",
-                           "--episodes", "2"], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-m", "drem_maniskill.cli", "scripted-success",
+                           "--task", "PegInsertionSide-v1", "--episodes", "2"],
+                          capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads(proc.stdout[proc.stdout.index("{"):])
     assert result["env_id"] == "PegInsertionSide-v1" and result["episodes"] == 2 and result["success_rate"] == 1.0

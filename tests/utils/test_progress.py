@@ -11,7 +11,7 @@ class _Terminal(io.StringIO):
         return True
 
 
-def test_a_bar_writing_to_a_file_shows_its_progress_where_tqdms_default_showed_nothing():
+def test_a_bar_writing_to_a_file_shows_its_progress():
     log = io.StringIO()  # what `nohup job > log 2>&1` gives a bar: not a terminal
     for _ in progress.progress_bar(range(3), desc="examine: expert", file=log):
         pass
