@@ -27,10 +27,10 @@ import numpy as np
 import torch
 
 import drem_maniskill  # noqa: F401
-from drem_maniskill.drem.checkpoint import default_checkpoint
+from drem_maniskill.drem.checkpoint import resolve_checkpoint
 from drem_maniskill.drem.model import DREMModel, ModelConfig, cosine_distance
 from drem_maniskill.pipeline.losses import reconstruction_loss
-from drem_maniskill.pipeline.sampling import ChildSampler
+from drem_maniskill.pipeline.tree.child_sampler import ChildSampler
 
 
 def time_steps(env, steps: int, seed: int = 0) -> list:
@@ -110,7 +110,8 @@ def bench_reward(task: str, checkpoint: str, steps: int) -> dict:
         drem_overhead=overhead, drem_overhead_quartiles=overhead_iqr,
         rgb_step_ms=pa * 1e3, drem_step_ms=pb * 1e3, reward_in_step_ms=pr * 1e3, reward_share=pr / pa,
         drem_straight_step_ms=pc * 1e3, drem_straight_overhead=paired("none_2", "straight")[0],
-        steps_each=len(times["none"]), block_pairs=len(blocks["drem"]), threads=torch.get_num_threads(), load_avg=os.getloadavg()[0],
+        steps_each=len(times["none"]), block_pairs=len(blocks["drem"]), threads=torch.get_num_threads(),
+        load_avg=os.getloadavg()[0],
     )
 
 
@@ -162,19 +163,25 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300, help="steps per measured case")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", default="outputs/bench/reward_speed.json")
-    parser.add_argument("--parts", nargs="+", choices=("reward", "sampling", "training"), default=("reward", "sampling", "training"))
+    parts = ("reward", "sampling", "training")
+    parser.add_argument("--parts", nargs="+", choices=parts, default=parts)
     args = parser.parse_args()
     steps = 8 if args.quick else args.steps
-    checkpoint = args.checkpoint or str(default_checkpoint(args.task))
+    checkpoint = str(resolve_checkpoint(args.task, args.checkpoint))
     res = dict(task=args.task, checkpoint=checkpoint)
     print(f"task {args.task}, checkpoint {checkpoint}")
     if "reward" in args.parts:
         r = res["reward"] = bench_reward(args.task, checkpoint, steps)
-        print(f"rgb env step            {r['rgb_step_ms']:7.1f} ms   ({r['threads']} torch threads, load average {r['load_avg']:.2f})")
-        print(f"DREM reward in the step {r['reward_in_step_ms']:7.1f} ms   -> {100 * r['reward_share']:.1f} % of the rgb step (target <= 15 %)")
-        print(f"rgb env step + DREM     {r['drem_step_ms']:7.1f} ms   -> step-time difference {100 * r['drem_overhead']:.1f} % (same env, median of {r['block_pairs']} paired blocks; "
-              f"quartiles {100 * r['drem_overhead_quartiles'][0]:.0f} to {100 * r['drem_overhead_quartiles'][1]:.0f} %)")
-        print(f"  straightforward path  {r['drem_straight_step_ms']:7.1f} ms   -> adds {100 * r['drem_straight_overhead']:.1f} % (model.encode(model.prepare(...)))")
+        print(f"rgb env step            {r['rgb_step_ms']:7.1f} ms   "
+              f"({r['threads']} torch threads, load average {r['load_avg']:.2f})")
+        print(f"DREM reward in the step {r['reward_in_step_ms']:7.1f} ms   "
+              f"-> {100 * r['reward_share']:.1f} % of the rgb step (target <= 15 %)")
+        low, high = (100 * q for q in r["drem_overhead_quartiles"])
+        print(f"rgb env step + DREM     {r['drem_step_ms']:7.1f} ms   -> step-time difference "
+              f"{100 * r['drem_overhead']:.1f} % (same env, median of {r['block_pairs']} paired blocks; "
+              f"quartiles {low:.0f} to {high:.0f} %)")
+        print(f"  straightforward path  {r['drem_straight_step_ms']:7.1f} ms   "
+              f"-> adds {100 * r['drem_straight_overhead']:.1f} % (model.encode(model.prepare(...)))")
     if "sampling" in args.parts:
         s = res["sampling"] = bench_sampling(args.task, steps)
         print(f"sampler children        {s['children_per_s']:7.1f} /s")
@@ -182,7 +189,8 @@ def main() -> None:
     if "training" in args.parts:
         res["training"] = {str(s): bench_training(s, 16, 2 if args.quick else 10) for s in (64, 128)}
         for size, t in res["training"].items():
-            print(f"training at {size:>3} px      {t['samples_per_s']:7.1f} samples/s ({t['samples_per_iteration']} per iteration, {t['threads']} threads)")
+            print(f"training at {size:>3} px      {t['samples_per_s']:7.1f} samples/s "
+                  f"({t['samples_per_iteration']} per iteration, {t['threads']} threads)")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp")

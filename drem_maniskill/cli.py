@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
@@ -31,9 +32,10 @@ def _cmd_record_expert(args) -> None:
     try:
         env_kwargs = json.loads(args.env_kwargs)
     except json.JSONDecodeError as err:
-        raise SystemExit(f"--env-kwargs must be a JSON object, e.g. '{{\"sim_backend\": \"cpu\"}}': {err}")
-    result = record_expert(args.task, args.out, seeds=seeds, obs_mode=args.obs_mode, name=args.name, save_video=args.video,
-                           env_kwargs=env_kwargs, descent_step=args.descent_step, descend_from=args.descend_from)
+        raise ValueError(f"--env-kwargs must be a JSON object, e.g. '{{\"sim_backend\": \"cpu\"}}': {err}") from err
+    result = record_expert(args.task, args.out, seeds=seeds, obs_mode=args.obs_mode, name=args.name,
+                           save_video=args.video, env_kwargs=env_kwargs, descent_step=args.descent_step,
+                           descend_from=args.descend_from)
     print(json.dumps({"trajectory": result.h5_path, "metadata": result.json_path, "success_rate": result.success_rate,
                       "lengths": result.lengths}, indent=2))
 
@@ -45,46 +47,55 @@ def _cmd_scripted_success(args) -> None:
     print(json.dumps(result, indent=2))
 
 
-def _cmd_sample(args) -> None:
-    from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
+def _sampler_flags() -> tuple:
+    """``SamplerConfig``, its phases' settings by name, and the phase flags named by their flat keys."""
+    from drem_maniskill.pipeline import SamplerConfig
 
-    overrides = {k: v for k, v in dict(num_children=args.num_children, num_seeds=args.num_seeds, delta=args.delta,
-                                       max_depth=args.max_depth, action_scale=args.action_scale, seed=args.seed,
-                                       episode=args.episode, workers=args.workers, expert_step_scale=args.expert_step_scale,
-                                       randomize_colors=args.randomize_colors,
-                                       randomize_placement=args.randomize_placement, outward_depth=args.outward_depth,
-                                       outward_lineages=args.outward_lineages,
-                                       outward_children=args.outward_children, face_depth=args.face_depth,
-                                       face_lineages=args.face_lineages, face_children=args.face_children,
-                                       face_step=args.face_step, side_depth=args.side_depth,
-                                       side_step=args.side_step, push_children=args.push_children,
-                                       goal_presses=args.goal_presses, turn_depth=args.turn_depth,
-                                       turn_children=args.turn_children).items() if v is not None}
-    config = SamplerConfig.preset(args.preset, **overrides)
+    entries, aliases = {}, {}
+    if "phases" in {f.name for f in dataclasses.fields(SamplerConfig)}:
+        from drem_maniskill.pipeline.tree.phases import PHASES
+
+        entries = {"phases": {name: phase.config for name, phase in PHASES.items()}}
+        # A phase's flat key that is not <phase>_<field> (e.g. --goal-presses) keeps its flag.
+        aliases = {f"phases.{name}.{field}": ["--" + key.replace("_", "-")]
+                   for name, phase in PHASES.items() for key, field in phase.legacy.items()}
+    return SamplerConfig, entries, aliases
+
+
+def _cmd_sample(args) -> None:
+    from drem_maniskill.pipeline import backward_sample
+    from drem_maniskill.pipeline.dataset import tree_report
+    from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
+
+    sampler_config, entries, _ = _sampler_flags()
+    overrides = overrides_from_args(args, sampler_config, entries=entries)
+    config = apply_overrides(sampler_config.preset(args.preset), overrides, entries=entries)
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
-    from drem_maniskill.pipeline.dataset import tree_report
-
     print(f"progress tree: {path}")
     print(f"regions around the opening: {json.dumps(tree_report(path))}")
 
 
 def _cmd_train_reward(args) -> None:
-    from drem_maniskill.drem.model import ModelConfig
     from drem_maniskill.pipeline.dataset import dataset_modalities
     from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
+    from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
 
-    config = TrainConfig.preset(args.preset)
+    overrides = overrides_from_args(args, TrainConfig)
     # Default: every modality the tree holds (a stock ManiSkill task has no F/T sensor).
-    modalities = tuple(args.modalities) if args.modalities else dataset_modalities(args.dataset)
-    model = ModelConfig(**{**config.model.to_dict(), "modalities": modalities,
-                           **({"image_size": args.image_size} if args.image_size else {})})
-    overrides = {k: v for k, v in dict(iterations=args.iterations, pairs_per_batch=args.pairs, seed=args.seed,
-                                       threads=args.threads).items() if v is not None}
-    config = TrainConfig(**{**{f: getattr(config, f) for f in config.__dataclass_fields__}, **overrides, "model": model})
+    model = overrides.setdefault("model", {})
+    model.setdefault("modalities", dataset_modalities(args.dataset))
+    config = apply_overrides(TrainConfig.preset(args.preset), overrides)
     print(f"training config: {config}")
     path = train_reward(args.dataset, args.out, config)
     print(f"reward checkpoint: {path}")
+
+
+def _cmd_build_reward(args) -> None:
+    from drem_maniskill.pipeline.build_reward import build_reward
+
+    result = build_reward(args.task, scale=args.scale, out=args.out, recipe=args.recipe)
+    print(json.dumps(result, indent=2, default=str) if isinstance(result, dict) else f"reward: {result}")
 
 
 def _cmd_calibrate_support(args) -> None:
@@ -99,7 +110,8 @@ def _cmd_examine(args) -> None:
 
     result = examine(args.task, args.checkpoint, seeds=range(args.seed, args.seed + args.episodes), out_dir=args.out)
     keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss",
-            "search_fail_first_contact_loss", "contact_plateau", "colour_spread", "held_positions", "inserted_reward_std",
+            "search_fail_first_contact_loss", "contact_plateau", "colour_spread", "held_positions",
+            "inserted_reward_std",
             "success_rate", "spearman_with_normalized_dense", "spearman_with_insertion_depth",
             "spearman_with_normalized_dense_expert")
     print(json.dumps({k: result.get(k) for k in keys}, indent=2))
@@ -113,12 +125,27 @@ def _cmd_run_script(args) -> None:
     (run_module if args.module else run_script)(args.script, extra)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``drem-maniskill`` command."""
-    from drem_maniskill.envs import TASKS
+# Flags whose name differs from their config field's, kept so existing command lines work.
+TRAIN_ALIASES = {"pairs_per_batch": ["--pairs"], "model.modalities": ["--modalities"],
+                 "model.image_size": ["--image-size"]}
+TRAIN_CHOICES = {"model.modalities": ["fixed", "wrist", "ft"]}
+# Preset names the help shows defaults for; an unknown name is refused by the config's own ``preset``.
+PRESET_NAMES = ("paper", "quick", "tiny")
 
-    parser = argparse.ArgumentParser(prog="drem-maniskill", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+
+def _presets(cls) -> dict:
+    """``{name: cls.preset(name)}`` for the names of ``PRESET_NAMES`` that ``cls`` has."""
+    presets = {}
+    for name in PRESET_NAMES:
+        try:
+            presets[name] = cls.preset(name)
+        except ValueError:
+            continue
+    return presets
+
+
+def _add_demo(sub) -> None:
+    from drem_maniskill.envs import TASKS
 
     p = sub.add_parser("demo", help="the DREM chain at a small scale on both tasks, with plots")
     p.add_argument("--out", default="outputs/demo", help="output folder (default: %(default)s)")
@@ -129,9 +156,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-drem", action="store_true", help="only record and draw the expert")
     p.set_defaults(func=_cmd_demo)
 
+
+def _add_record_expert(sub) -> None:
     p = sub.add_parser("record-expert", help="record scripted-expert episodes in ManiSkill's .h5/.json format")
-    p.add_argument("--task", default="PegInHole-v1",
-                   help="env id (default: %(default)s)")
+    p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
     p.add_argument("--out", default="outputs/expert", help="output folder (default: %(default)s)")
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="first episode seed (default: %(default)s)")
@@ -146,10 +174,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "smaller gives the progress tree more depths inside it (docs/drem.md)")
     p.add_argument("--descend-from", type=float,
                    help="our tasks: metres above the socket's top face the aligned expert starts its slow descent "
-                        "(default: wherever it aligned, often 2 cm up); above it, it approaches the pre-insertion point "
-                        "6 mm above the opening at its approach speed, so fewer of the demo's steps hover (docs/drem.md)")
+                        "(default: wherever it aligned, often 2 cm up); above it, it approaches the pre-insertion "
+                        "point 6 mm above the opening at its approach speed, so fewer of the demo's steps hover "
+                        "(docs/drem.md)")
     p.set_defaults(func=_cmd_record_expert)
 
+
+def _add_scripted_success(sub) -> None:
     p = sub.add_parser("scripted-success", help="success rate of a scripted policy over many seeds")
     p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
     p.add_argument("--policy", default="expert", help="expert, direct_success, align_success, search_fail, random")
@@ -157,6 +188,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="first seed (default: %(default)s)")
     p.set_defaults(func=_cmd_scripted_success)
 
+
+def _add_examine(sub) -> None:
     p = sub.add_parser("examine", help="examine a DREM reward with the four scripted policies; plot and JSON")
     p.add_argument("--task", default="PegInHole-v1", help="env id (default: %(default)s)")
     p.add_argument("--checkpoint", required=True, help="reward checkpoint (.pt)")
@@ -165,80 +198,81 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="first seed; keep clear of the expert's (default: %(default)s)")
     p.set_defaults(func=_cmd_examine)
 
-    p = sub.add_parser("sample", help="backward sampling: build the task progress tree from an expert trajectory")
+
+def _add_sample(sub) -> None:
+    from drem_maniskill.utils.config_cli import add_dataclass_args
+
+    sampler_config, entries, aliases = _sampler_flags()
+    p = sub.add_parser("sample", help="backward sampling: build the task progress tree from an expert trajectory",
+                       description="Backward sampling: the task progress tree from an expert trajectory. Every flag "
+                                   "but --expert, --out and --preset sets the SamplerConfig field of its name, on "
+                                   "top of the preset.")
     p.add_argument("--expert", required=True, help="expert trajectory .h5 (RecordEpisode format, .json beside it)")
-    p.add_argument("--out", default="outputs/tree.h5", help="dataset to write (default: %(default)s); resumes from <out>.partial")
-    p.add_argument("--preset", default="paper", choices=["paper", "quick", "tiny"], help="paper: M=500; quick: M=24")
-    p.add_argument("--num-children", type=int, help="M, random actions per seed")
-    p.add_argument("--num-seeds", type=int, help="N, seeds kept per depth (paper: 1)")
-    p.add_argument("--delta", type=float, help="stop when N*delta seeds are in the start region")
-    p.add_argument("--max-depth", type=int, help="give up past this depth")
-    p.add_argument("--action-scale", type=float, help="random actions uniform in [-s, s]")
-    p.add_argument("--expert-step-scale", type=float,
-                   help="actions at each depth span this many times the expert's step there (0: the paper's fixed range)")
-    p.add_argument("--randomize-colors", action=argparse.BooleanOptionalAction, default=None,
-                   help="fresh part and socket colours per child (default: on)")
-    p.add_argument("--randomize-placement", action=argparse.BooleanOptionalAction, default=None,
-                   help="each child's scene moved to a fresh socket placement, robot with it (default: on)")
-    p.add_argument("--outward-depth", type=int,
-                   help="depths sampled past the start region, away from the expert's path (not in the paper; default 0: off)")
-    p.add_argument("--outward-lineages", type=int, help="outward directions, one lineage each (default: 12)")
-    p.add_argument("--outward-children", type=int, help="random actions per outward seed and depth (default: 100)")
-    p.add_argument("--face-depth", type=int,
-                   help="depths of lineages sliding the part over the socket's face from the opening (not in the paper; "
-                        "default 0: off)")
-    p.add_argument("--face-lineages", type=int, help="face directions, one lineage each (default: 8)")
-    p.add_argument("--face-children", type=int, help="random actions per face seed and depth (default: 60)")
-    p.add_argument("--face-step", type=float, help="metres of travel the face phase's actions span (default: 0.0015)")
-    p.add_argument("--side-depth", type=int,
-                   help="depths the face lineages go on, over the face's edge and down beside the socket's block (not in "
-                        "the paper; needs --face-depth; default 0: off)")
-    p.add_argument("--side-step", type=float, help="metres of travel the side phase's actions span (default: 0.004)")
-    p.add_argument("--push-children", type=int,
-                   help="full-range random actions from every face and side seed, labelled one past it: hard presses "
-                        "away from the goal (not in the paper; needs --face-depth; default 0: off)")
-    p.add_argument("--goal-presses", type=int,
-                   help="random actions from the goal pushing down over the whole range (sideways and twisting within the "
-                        "goal's own range), labelled depth 1: the inserted part pressed on the opening's floor (not in "
-                        "the paper; default 0: off)")
-    p.add_argument("--turn-depth", type=int,
-                   help="depths of lineages turning the part about its axis and tilting it near the opening, above it "
-                        "and on the face (not in the paper; needs --face-depth; default 0: off)")
-    p.add_argument("--turn-children", type=int, help="random actions per turn seed and depth (default: 24)")
-    p.add_argument("--seed", type=int, help="random seed")
-    p.add_argument("--episode", type=int, help="episode of the expert file")
-    p.add_argument("--workers", type=int, help="worker processes")
+    p.add_argument("--out", default="outputs/tree.h5",
+                   help="dataset to write (default: %(default)s); resumes from <out>.partial")
+    p.add_argument("--preset", default="paper",
+                   help=f"sampler preset, one of {', '.join(_presets(sampler_config))} (default: %(default)s)")
+    add_dataclass_args(p, sampler_config, presets=_presets(sampler_config), entries=entries, aliases=aliases)
     p.set_defaults(func=_cmd_sample)
 
-    p = sub.add_parser("train-reward", help="train the DREM progress model on a progress tree")
+
+def _add_train_reward(sub) -> None:
+    from drem_maniskill.pipeline.train_reward import TrainConfig
+    from drem_maniskill.utils.config_cli import add_dataclass_args
+
+    p = sub.add_parser("train-reward", help="train the DREM progress model on a progress tree",
+                       description="Train the DREM progress model on a progress tree. Every flag but --dataset, "
+                                   "--out and --preset sets the TrainConfig field of its name (--model-*: its "
+                                   "ModelConfig), on top of the preset; --model-modalities defaults to every "
+                                   "modality the tree holds.")
     p.add_argument("--dataset", required=True, help="progress tree .h5 from `sample`")
     p.add_argument("--out", default="outputs/reward", help="output folder: drem.pt, tb/, train_state.pt (resume)")
-    p.add_argument("--preset", default="paper", choices=["paper", "quick", "tiny"],
-                   help="paper: 20k iterations at 128 px; quick/tiny: CPU-sized")
-    p.add_argument("--modalities", nargs="+", choices=["fixed", "wrist", "ft"], help="inputs (default: all the dataset holds)")
-    p.add_argument("--image-size", type=int, help="model input size (multiple of 64)")
-    p.add_argument("--iterations", type=int)
-    p.add_argument("--pairs", type=int, help="pairs per batch (half neighbours)")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--preset", default="paper",
+                   help=f"training preset, one of {', '.join(_presets(TrainConfig))}: paper: 20k iterations at "
+                        "128 px; quick and tiny: CPU-sized (default: %(default)s)")
+    add_dataclass_args(p, TrainConfig, aliases=TRAIN_ALIASES, choices=TRAIN_CHOICES, presets=_presets(TrainConfig))
     p.set_defaults(func=_cmd_train_reward)
 
+
+def _add_build_reward(sub) -> None:
+    p = sub.add_parser("build-reward", help="one task's DREM reward from its recipe: record, sample, train, "
+                                            "examine, calibrate; each stage resumes")
+    p.add_argument("--task", required=True, help="env id whose recipe (tasks/<task>/recipe.toml) to run")
+    p.add_argument("--scale", default="full", choices=["tiny", "demo", "full"],
+                   help="tiny: seconds, for tests; demo: minutes; full: the recipe as shipped (default: %(default)s)")
+    p.add_argument("--out", help="output folder (default: the recipe's, for the scale)")
+    p.add_argument("--recipe", help="recipe file instead of the task's own")
+    p.set_defaults(func=_cmd_build_reward)
+
+
+def _add_calibrate_support(sub) -> None:
     p = sub.add_parser("calibrate-support", help="tree nodes' reconstruction errors for the drem-guarded reward")
     p.add_argument("--checkpoint", required=True, help="a DREM checkpoint (drem.pt)")
     p.add_argument("--dataset", required=True, help="the progress tree it was trained on")
     p.add_argument("--out", required=True, help="support.json to write (rewards/<task>/support.json for drem-guarded)")
     p.set_defaults(func=_cmd_calibrate_support)
 
-    from drem_maniskill.rl.__main__ import add_subcommands
 
-    add_subcommands(sub)  # train-policy, compare (drem_maniskill/rl, docs/rl.md)
-
+def _add_run_script(sub) -> None:
     p = sub.add_parser("run-script", help="run a ManiSkill script (e.g. ppo_cpu.py) with our env ids registered")
     p.add_argument("script", help="the script, e.g. ManiSkill's examples/baselines/ppo/ppo_cpu.py (with -m: a module)")
     p.add_argument("-m", "--module", action="store_true",
                    help="SCRIPT is a module, run as `python -m`, e.g. mani_skill.examples.benchmarking.gpu_sim")
     p.add_argument("args", nargs=argparse.REMAINDER, help="-- then the script's own arguments")
     p.set_defaults(func=_cmd_run_script)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``drem-maniskill`` command."""
+    from drem_maniskill.rl.__main__ import add_subcommands
+
+    parser = argparse.ArgumentParser(prog="drem-maniskill", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in (_add_demo, _add_record_expert, _add_scripted_success, _add_examine, _add_sample, _add_train_reward,
+                _add_build_reward, _add_calibrate_support):
+        add(sub)
+    add_subcommands(sub)  # train-policy, compare (drem_maniskill/rl, docs/rl.md)
+    _add_run_script(sub)
     return parser
 
 

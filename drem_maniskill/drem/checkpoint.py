@@ -9,7 +9,7 @@ and last embeddings ``h(s_0)`` and ``h(s_G)`` are among the weights.
 
 Shipped checkpoints live in ``rewards/<env_id>/`` (``drem.pt``, and ``drem_image.pt`` for the
 image-only model): beside the package in a checkout, under ``<prefix>/share/drem-maniskill`` in
-a wheel; ``default_checkpoint`` finds them.
+a wheel; ``resolve_checkpoint`` finds them.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ FORMAT = "drem-maniskill-reward/1"
 
 # rewards/ sits beside the package in a checkout (editable install); a wheel installs it as
 # data files under <prefix>/share/drem-maniskill/rewards (pyproject's data-files).
-REWARDS_DIRS = (Path(__file__).resolve().parents[2] / "rewards", Path(sys.prefix) / "share" / "drem-maniskill" / "rewards")
+REWARDS_DIRS = (Path(__file__).resolve().parents[2] / "rewards",
+                Path(sys.prefix) / "share" / "drem-maniskill" / "rewards")
 
 
 class CheckpointError(ValueError):
@@ -38,7 +39,8 @@ def save_checkpoint(path: str, header: dict, weights: dict) -> str:
     """Write the checkpoint atomically (temp file + rename); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"format": FORMAT, "header": json.dumps(header, sort_keys=True), "weights": {k: v.detach().cpu() for k, v in weights.items()}}
+    payload = {"format": FORMAT, "header": json.dumps(header, sort_keys=True),
+               "weights": {k: v.detach().cpu() for k, v in weights.items()}}
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
     os.close(fd)
     try:
@@ -55,10 +57,7 @@ def load_checkpoint(path: str) -> tuple[dict, dict]:
     """Read ``(header, weights)``; fails with a clear ``CheckpointError`` on a bad file."""
     path = Path(path)
     if not path.exists():
-        raise CheckpointError(
-            f"DREM checkpoint {path} not found. Train one with `drem-maniskill train-reward`, or pass "
-            "drem_checkpoint=<path> to gym.make"
-        )
+        raise missing_checkpoint(path)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several types for truncated or foreign files
@@ -92,7 +91,8 @@ def check_compatible(header: dict, env_id: str, cameras: dict, ft_history: int |
         if ft_history is None:
             problems.append("it uses the wrist F/T history, which this env does not provide")
         elif ft_history != header.get("ft_history"):
-            problems.append(f"it expects an F/T history of {header.get('ft_history')} readings, this env gives {ft_history}")
+            problems.append(f"it expects an F/T history of {header.get('ft_history')} readings, "
+                            f"this env gives {ft_history}")
     if problems:
         raise CheckpointError(
             f"DREM checkpoint {path} does not fit this env: " + "; ".join(problems)
@@ -101,7 +101,10 @@ def check_compatible(header: dict, env_id: str, cameras: dict, ft_history: int |
 
 
 def default_checkpoint(env_id: str, image_only: bool = False) -> Path:
-    """Path of the shipped checkpoint for ``env_id`` (``rewards/<env_id>/drem.pt``, or ``drem_image.pt``)."""
+    """Where the shipped checkpoint of ``env_id`` is, or would be (``rewards/<env_id>/drem.pt`` or ``drem_image.pt``).
+
+    It does not check that the file exists; ``resolve_checkpoint`` does, and is what code that loads one calls.
+    """
     name = "drem_image.pt" if image_only else "drem.pt"
     for folder in REWARDS_DIRS:
         if (folder / env_id / name).exists():
@@ -109,14 +112,34 @@ def default_checkpoint(env_id: str, image_only: bool = False) -> Path:
     return REWARDS_DIRS[0] / env_id / name
 
 
-def resolve_checkpoint(env_id: str, path: Optional[str], image_only: bool = False) -> Path:
-    """The checkpoint to use: ``path`` if given, else the shipped default for ``env_id``."""
-    if path:
-        return Path(path)
-    default = default_checkpoint(env_id, image_only)
-    if not default.exists():
-        raise CheckpointError(
-            f"no DREM checkpoint ships for {env_id} (looked for {default}). Train one with "
-            f"`drem-maniskill train-reward` and pass gym.make({env_id!r}, reward_mode='drem', drem_checkpoint=PATH)"
-        )
-    return default
+def resolve_checkpoint(env_id: str, path: Optional[str] = None, image_only: bool = False) -> Path:
+    """The checkpoint to use for ``env_id``: ``path`` if given, else the shipped one; a clear error if it is missing.
+
+    ``image_only`` picks the image-only model (``drem_image.pt``) as the shipped default.
+    """
+    resolved = Path(path) if path else default_checkpoint(env_id, image_only)
+    if not resolved.exists():
+        raise missing_checkpoint(resolved, env_id, given=bool(path), image_only=image_only)
+    return resolved
+
+
+class CheckpointNotFoundError(CheckpointError, FileNotFoundError):
+    """A checkpoint file that does not exist (a ``FileNotFoundError`` too)."""
+
+
+def missing_checkpoint(path, env_id: Optional[str] = None, given: bool = True,
+                       image_only: bool = False) -> CheckpointNotFoundError:
+    """The one error for a DREM checkpoint that is not there: what was looked for and how to make or name one."""
+    kind = "image-only DREM checkpoint" if image_only else "DREM checkpoint"
+    if given or env_id is None:
+        what = f"{kind} {path} not found"
+    else:
+        what = f"no {kind} ships for {env_id} (looked for {path})"
+    task = env_id or "<task>"
+    modalities = " --model-modalities fixed wrist" if image_only else ""
+    return CheckpointNotFoundError(
+        f"{what}. Build one with `drem-maniskill build-reward --task {task}`, or train one with "
+        f"`drem-maniskill train-reward --dataset TREE.h5 --out DIR{modalities}`; then pass its path "
+        f"(gym.make({task!r}, reward_mode='drem', drem_checkpoint=PATH), or train-policy --reward-checkpoint PATH)"
+        + ("" if given else f" or copy it to {path}")
+    )

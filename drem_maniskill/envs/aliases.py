@@ -4,8 +4,8 @@ ManiSkill's baselines (``ppo.py``, ``ppo_cpu.py``, ``sac.py``) and its benchmark
 ``gym.make(env_id, ...)`` without a reward mode, so they train on the env's default. These ids
 make that default DREM:
 
-* ``PegInHole-DREM-v1``, ``USBInsertion-DREM-v1`` (one per task of ``envs.TASKS``): our tasks with ``reward_mode="drem"`` by
-  default and the shipped checkpoint (``drem_checkpoint=`` picks another), paying ``R - 1``
+* ``PegInHole-DREM-v1``, ``USBInsertion-DREM-v1`` (one per task of ``envs.TASKS``): our tasks with
+  ``reward_mode="drem"`` by default and the shipped checkpoint (``drem_checkpoint=`` picks another), paying ``R - 1``
   (``drem_form="shifted"``, safe where success ends the episode; ``drem_form="paper"`` pays ``R``);
   every other reward mode stays available;
 * ``register_drem_env("PegInsertionSide-v1", "ckpt.pt")`` registers ``PegInsertionSide-DREM-v1``:
@@ -33,7 +33,7 @@ from typing import Optional
 
 from mani_skill.utils.registration import REGISTERED_ENVS, register_env
 
-from drem_maniskill.drem.checkpoint import load_checkpoint
+from drem_maniskill.drem.checkpoint import load_checkpoint, resolve_checkpoint
 from drem_maniskill.drem.mode import DREMRewardMode
 
 
@@ -44,17 +44,19 @@ def drem_env_id(base_env_id: str) -> str:
     return f"{name}-DREM-v{version}" if sep and version.isdigit() else f"{base_env_id}-DREM"
 
 
-def _drem_default(base_cls, alias: str, default_checkpoint: Optional[str] = None):
-    """``base_cls`` with ``reward_mode="drem"`` by default (and ``drem_checkpoint=default_checkpoint``)."""
+def _drem_default(base_cls, alias: str, checkpoint: Optional[str] = None):
+    """``base_cls`` with ``reward_mode="drem"`` by default, reading ``checkpoint`` (None: the shipped one)."""
 
     class DREMDefault(base_cls):
-        __doc__ = f"{base_cls.__name__} with reward_mode='drem' by default ({alias}), paying R - 1 (drem_form='shifted')."
+        __doc__ = (f"{base_cls.__name__} with reward_mode='drem' by default ({alias}), "
+                   "paying R - 1 (drem_form='shifted').")
 
         # ManiSkill's scripts end episodes at success; the paper's R (positive per step) then pays an agent for
         # never finishing (measured: docs/maniskill-scripts.md). R - 1 is never positive: finishing costs nothing.
-        def __init__(self, *args, reward_mode: Optional[str] = "drem", drem_checkpoint: Optional[str] = default_checkpoint,
-                     drem_form: str = "shifted", **kwargs):
-            super().__init__(*args, reward_mode=reward_mode, drem_checkpoint=drem_checkpoint, drem_form=drem_form, **kwargs)
+        def __init__(self, *args, reward_mode: Optional[str] = "drem",
+                     drem_checkpoint: Optional[str] = checkpoint, drem_form: str = "shifted", **kwargs):
+            super().__init__(*args, reward_mode=reward_mode, drem_checkpoint=drem_checkpoint, drem_form=drem_form,
+                             **kwargs)
 
     DREMDefault.__name__ = DREMDefault.__qualname__ = f"{base_cls.__name__}DREM"
     return DREMDefault
@@ -71,11 +73,16 @@ def register_task_aliases(tasks) -> dict:
     return aliases
 
 
-def register_drem_env(base_env_id: str, checkpoint: str, new_env_id: Optional[str] = None, **kwargs) -> str:
-    """Register a stock ManiSkill task with DREM from ``checkpoint`` as its default reward; returns the new id."""
+def register_drem_env(base_env_id: str, checkpoint: Optional[str] = None, new_env_id: Optional[str] = None,
+                      **kwargs) -> str:
+    """Register a ManiSkill task with DREM from ``checkpoint`` (None: the shipped one) as its default reward.
+
+    Returns the new id.
+    """
     if base_env_id not in REGISTERED_ENVS:
         raise ValueError(f"{base_env_id!r} is not a registered ManiSkill env id")
-    header, _ = load_checkpoint(checkpoint)  # fails clearly on a missing or corrupt file, now
+    checkpoint = resolve_checkpoint(base_env_id, checkpoint)
+    header, _ = load_checkpoint(checkpoint)  # fails clearly on a corrupt file, now
     if header.get("env_id") != base_env_id:
         raise ValueError(f"{checkpoint} was trained on {header.get('env_id')!r}, not {base_env_id!r}")
     spec = REGISTERED_ENVS[base_env_id]

@@ -34,7 +34,8 @@ def policy_kwargs(config) -> dict:
 def build_sac(config, venv) -> SAC:
     """A fresh SAC (``rl.sac``: SB3's, shared-encoder step optional) with our extractor, as ``config`` says."""
     model = SAC(
-        "SharedEncoderPolicy" if config.shared_encoder else "MultiInputPolicy", venv, learning_rate=config.learning_rate,
+        "SharedEncoderPolicy" if config.shared_encoder else "MultiInputPolicy", venv,
+        learning_rate=config.learning_rate,
         # No more transitions than steps: SB3 allocates (and pickles) the whole buffer.
         buffer_size=min(config.buffer_size, config.steps), batch_size=config.batch_size,
         learning_starts=config.learning_starts, train_freq=config.train_freq, gradient_steps=config.gradient_steps,

@@ -1,4 +1,4 @@
-"""``compare``: success rate against env steps over seeds, one curve per reward, one panel per task (the paper's Fig. 5)."""
+"""``compare``: success rate against env steps over seeds, one curve per reward, one panel per task (paper's Fig. 5)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from drem_maniskill.rl.train_policy import file_sha256, read_eval_csv
 
 
 def steps_to_reach(steps: Sequence[float], values: Sequence[float], level: float = 0.5) -> Optional[float]:
-    """First evaluated step at which ``values`` reaches ``level``, or None (no interpolation: only what was measured)."""
+    """First evaluated step at which ``values`` reaches ``level``, or None (no interpolation: what was measured)."""
     for s, v in zip(steps, values):
         if v >= level:
             return float(s)
@@ -169,14 +169,17 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
     fig.savefig(png, dpi=120)
     plt.close(fig)
 
-    (out_dir / "comparison.json").write_text(json.dumps(dict(levels=list(levels), band=band, rows=table), indent=2) + "\n")
+    summary = dict(levels=list(levels), band=band, rows=table)
+    (out_dir / "comparison.json").write_text(json.dumps(summary, indent=2) + "\n")
     names = [f"_to_{round(level * 100)}" for level in levels]
     head = ["task", "reward", "seeds", "final_steps", "final_success"] + [f"steps{n} (mean; per seed)" for n in names]
     lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for r in table:
         final = f"{r['final_success']:.2f} ({r['final_success_min']:.2f}-{r['final_success_max']:.2f})"
         reach = [f"{r['steps' + n]}; {' / '.join(map(str, r['seed_steps' + n]))}" for n in names]
-        lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | " + " | ".join(reach) + " |")
+        lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | "
+                     + " | ".join(reach) + " |")
     (out_dir / "comparison.md").write_text("\n".join(lines) + "\n")
-    return dict(png=str(png), json=str(out_dir / "comparison.json"), markdown=str(out_dir / "comparison.md"), rows=table)
+    return dict(png=str(png), json=str(out_dir / "comparison.json"), markdown=str(out_dir / "comparison.md"),
+                rows=table)
 

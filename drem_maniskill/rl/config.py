@@ -11,8 +11,8 @@ from typing import Optional
 from drem_maniskill.envs import is_insertion_task
 
 PRESETS = ("state", "light", "paper")
-# Episodes end at success, vector inputs normalised, half the action range: measured in docs/rl.md (issue 13,
-# item 3), the setting where SAC learns the peg with engineered in all three seeds; the state and light presets.
+# Episodes end at success, vector inputs normalised, half the action range: the setting where SAC learns the peg
+# with engineered in all three seeds (docs/rl.md); the state and light presets.
 LEARNABLE = dict(terminate_on_success=True, obs_norm=("state", "ft"), action_scale=0.5)
 
 
@@ -21,8 +21,9 @@ def native_bf16() -> bool:
     import torch
 
     # Without them torch emulates bfloat16: the state preset's gradient step took 300 ms instead of 41 ms
-    # in float32 on an AVX2-only CPU (docs/rl.md, "Speed", stop 31). torch.cpu names these checks with an underscore.
-    return any(getattr(torch.cpu, name, lambda: False)() for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported"))
+    # in float32 on an AVX2-only CPU (docs/rl.md, "Speed"). torch.cpu names these checks with an underscore.
+    checks = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
+    return any(getattr(torch.cpu, name, lambda: False)() for name in checks)
 
 
 @dataclass
@@ -30,78 +31,128 @@ class RLConfig:
     """Everything a run needs; ``RLConfig.preset(name, **overrides)`` is the usual way to make one."""
 
     task: str = "PegInHole-v1"
-    reward: str = "drem"  # a name of rl.rewards.REWARDS
-    algo: str = "sac"  # a name of rl.algos.ALGOS
+    """Env id: one of ours or a ManiSkill task the reward fits."""
+    reward: str = "drem"
+    """A name of ``rl.rewards.REWARDS``."""
+    algo: str = "sac"
+    """A name of ``rl.algos.ALGOS``."""
     seed: int = 0
-    steps: int = 20_000  # environment steps (all envs together)
+    """Training seed."""
+    steps: int = 20_000
+    """Environment steps, all envs together."""
     preset: str = "light"
-    out: Optional[str] = None  # run dir; None: outputs/rl/<task>/<reward>/seed<S>
+    """The preset the run started from (``RLConfig.preset``)."""
+    out: Optional[str] = None
+    """Run dir; None: outputs/rl/<task>/<reward>/seed<S>."""
 
     # --- what the policy sees
-    image_size: int = 32  # both cameras, area-downscaled from the 128 px render
+    image_size: int = 32
+    """Pixels of both cameras' images, area-downscaled from the 128 px render."""
     cameras: tuple = ("fixed_camera", "wrist_camera")
-    policy_ft: Optional[bool] = True  # None: the paper's rule, F/T only for the drem reward
-    policy_state: bool = True  # qpos (9) + tcp pose (7)
-    policy_qvel: bool = False  # + joint velocities (9)
-    policy_privileged: bool = False  # + the socket's pose (7): the task's object pose, as ManiSkill's state obs
-    obs_norm: tuple = ()  # vector inputs ("state", "ft") normalised by running statistics in the network
-    action_scale: float = 1.0  # the policy's [-1, 1] is this fraction of the controller's range (2 cm, 0.1 rad per step)
+    """Camera uids the policy sees; none: a state-only policy."""
+    policy_ft: Optional[bool] = True
+    """Whether the policy gets the wrist F/T history; None: only with the drem reward, as the paper does."""
+    policy_state: bool = True
+    """Whether the policy gets qpos (9) and the TCP pose (7)."""
+    policy_qvel: bool = False
+    """Whether the policy also gets the joint velocities (9)."""
+    policy_privileged: bool = False
+    """Whether the policy gets the socket's pose (7): the task's object pose, as ManiSkill's state obs."""
+    obs_norm: tuple = ()
+    """Vector inputs (state, ft) normalised by running statistics in the network."""
+    action_scale: float = 1.0
+    """The policy's [-1, 1] as a fraction of the controller's range (2 cm, 0.1 rad per step)."""
 
     # --- the policy network (SB3 MultiInputPolicy with our extractor)
-    cnn_channels: tuple = (16, 32, 32)  # stride-2 convs per camera
+    cnn_channels: tuple = (16, 32, 32)
+    """Channels of the stride-2 convs per camera."""
     camera_features: int = 64
+    """Features per camera out of its CNN."""
     ft_features: int = 32
+    """Features out of the F/T history's encoder."""
     net_arch: tuple = (256, 256)
-    share_features_extractor: bool = False  # SB3's sharing: one extractor, trained by the actor loss
-    # One extractor for actor and critics, trained by the critic loss, the actor reading it detached
-    # (ManiSkill's sac_rgbd.py, DrQ): per gradient step the CNNs run 2 forward + 1 backward passes, not 5 + 3.
-    # Runs saved before the field existed load with False, as they were trained.
+    """Hidden layer widths of actor and critics."""
+    share_features_extractor: bool = False
+    """SB3's sharing: one extractor for actor and critics, trained by the actor loss."""
     shared_encoder: bool = True
+    """One extractor for actor and critics, trained by the critic loss, the actor reading it detached.
+
+    As ManiSkill's sac_rgbd.py and DrQ: per gradient step the CNNs run 2 forward and 1 backward passes,
+    not 5 and 3. Run configs without the field load with False, as those runs were trained."""
 
     # --- SAC (stable-baselines3)
     learning_rate: float = 3e-4
+    """Adam's learning rate, actor and critics."""
     buffer_size: int = 50_000
-    batch_size: int = 64  # light: 64 small images per batch keep its gradient step about twice the env step here
+    """Replay buffer capacity in transitions."""
+    batch_size: int = 64
+    """Transitions per gradient step; 64 small images keep the light preset's step about twice the env step."""
     learning_starts: int = 1_000
-    # One gradient step per train_freq env steps (SB3's train_freq, gradient_steps). Every preset takes 1: a
-    # quarter of the updates reached the speed targets in stop 17 but cost learning (docs/rl.md, "Speed").
+    """Env steps of random actions before the first gradient step."""
     train_freq: int = 1
+    """Env steps between updates; the update ratio is gradient_steps / train_freq.
+
+    Every preset takes 1: a quarter of the updates reached the speed targets but cost learning
+    (docs/rl.md, "Speed")."""
     gradient_steps: int = 1
-    gamma: float = 0.95  # 50-step episodes: an effective horizon of ~20 steps
+    """Gradient steps per update."""
+    gamma: float = 0.95
+    """Discount; 50-step episodes give an effective horizon of about 20 steps."""
     tau: float = 0.005
-    # SAC's gradient step under bfloat16 autocast (rl.sac.SAC.train_bf16): faster on CPUs with AVX512-BF16 or AMX,
-    # far slower without; on in the state preset where native_bf16(), its step being large matrix products (docs/rl.md, "Speed").
+    """Polyak factor of the target critics."""
     train_bf16: bool = False
-    # The training env in a child process, its step overlapped with the gradient step (rl.vec_env.SubprocDictVecEnv,
-    # rl.sac.SAC.train_while_env_steps): each action comes from the policy one update older. Not with a reward that
-    # learns from the run (VICE-RAQ) or an algorithm that cannot defer its step, which stay in this process (overlap_env_used).
+    """SAC's gradient step under bfloat16 autocast (``rl.sac.SAC.train_bf16``).
+
+    Faster on CPUs with AVX512-BF16 or AMX, far slower without; the state preset turns it on where
+    ``native_bf16()``, its step being large matrix products (docs/rl.md, "Speed")."""
     overlap_env: bool = False
+    """Step the training env in a child process while SAC's gradient step runs here.
+
+    Each action comes from the policy one update older (``rl.vec_env.SubprocDictVecEnv``,
+    ``rl.sac.SAC.train_while_env_steps``). A reward that learns from the run (VICE-RAQ) or an algorithm
+    that cannot defer its step stays in this process (``overlap_env_used``)."""
     ent_coef: str = "auto"
-    terminate_on_success: bool = False  # end a training episode at its first success (a terminal state)
+    """SAC's entropy coefficient; auto: learned towards the target entropy."""
+    terminate_on_success: bool = False
+    """End a training episode at its first success (a terminal state)."""
 
     # --- environment
     num_envs: int = 1
+    """Parallel envs (GPU sim)."""
     sim_backend: str = "cpu"
+    """ManiSkill's sim backend: cpu or gpu."""
     env_kwargs: dict = field(default_factory=dict)
-    device: str = "auto"  # torch device of SAC; "auto": cuda when there is one
-    threads: int = 1  # torch CPU threads: one is faster than two here, for the gradient step and the run (docs/rl.md, "Speed")
+    """Extra gym.make keyword arguments."""
+    device: str = "auto"
+    """Torch device of SAC; auto: cuda when there is one."""
+    threads: int = 1
+    """Torch CPU threads; one is faster than two here, for the gradient step and the run (docs/rl.md, "Speed")."""
 
     # --- evaluation and checkpoints
     eval_every: int = 2_000
+    """Env steps between evaluations and checkpoints."""
     eval_seed: int = 10_000
+    """First seed of the held-out evaluation episodes."""
     eval_episodes: int = 10
+    """Held-out episodes per evaluation."""
 
-    # --- options of the reward, passed to its spec's learner (vice: VICEConfig overrides, and
-    # goal_seeds: expert episodes, seeds 0..n-1, whose successful images are the goals; default 10)
+    # --- the reward
     reward_kwargs: dict = field(default_factory=dict)
-    reward_checkpoint: Optional[str] = None  # the DREM rewards: this checkpoint instead of rewards/<task>/drem.pt
-    # The DREM rewards: "paper" pays R, "shifted" R - 1 (drem.reward.DREM_FORMS); None: "shifted" when
-    # episodes end at success (a positive reward would pay for not finishing), else "paper".
-    drem_form: Optional[str] = None
+    """Options passed to the reward's learner.
 
+    vice: VICEConfig overrides, and goal_seeds: the expert episodes (seeds 0..n-1) whose successful
+    images are the goals (default 10)."""
+    reward_checkpoint: Optional[str] = None
+    """The DREM rewards: this checkpoint instead of the shipped rewards/<task>/drem.pt."""
+    drem_form: Optional[str] = None
+    """The DREM rewards: paper pays R, shifted R - 1 (``drem.reward.DREM_FORMS``).
+
+    None: shifted when episodes end at success (a positive reward would pay for not finishing), else paper."""
+
+    # The field ``preset`` records the preset's name in a run's config.json; this method makes one.
     @classmethod
-    def preset(cls, name: str, **overrides) -> "RLConfig":
-        """The ``state`` (reward studies), ``light`` (images, CPU) or ``paper`` (images, GPU) config with ``overrides``."""
+    def preset(cls, name: str, **overrides) -> "RLConfig":  # noqa: F811
+        """The ``state`` (reward studies), ``light`` (images, CPU) or ``paper`` (images, GPU) config, with overrides."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose one of {list(PRESETS)}")
         base = dict(preset=name)
@@ -113,15 +164,15 @@ class RLConfig:
                 steps=50_000, buffer_size=100_000, batch_size=256, learning_starts=1_000, eval_every=2_500,
                 **LEARNABLE,
                 shared_encoder=False,  # no camera to share; the comparison's runs were made with SB3's layout
-                # Since stop 18: the gradient step in bfloat16, overlapped with the env step in a child process
-                # (2 cores): within 2x of the env's own stepping, learning at the same steps (docs/rl.md, "Speed").
-                # bfloat16 only where the CPU has it in hardware (stop 31): emulated, it made the run 6.5-6.9x slower.
-                # The comparison's 30 runs were made before, in float32 and in one process (labelled so).
+                # The gradient step in bfloat16, overlapped with the env step in a child process (2 cores):
+                # within 2x of the env's own stepping, learning at the same steps (docs/rl.md, "Speed").
+                # bfloat16 only where the CPU has it in hardware: emulated, it made the run 6.5-6.9x slower.
+                # The comparison's 30 runs were made in float32 and in one process (labelled so).
                 train_bf16=native_bf16(), overlap_env=True,
             )
         elif name == "light":
             # Images on this CPU: the state preset's learnability settings, the env overlapped with the gradient
-            # step (stop 18; from stop 17 a quarter of the updates took its place, at a cost to learning).
+            # step (a quarter of the updates would be as fast, at a cost to learning).
             base.update(**LEARNABLE, overlap_env=True)
         elif name == "paper":
             # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
@@ -130,7 +181,7 @@ class RLConfig:
                 image_size=128, policy_ft=None, policy_state=False, cnn_channels=(16, 32, 32, 64, 64, 64),
                 steps=150_000, buffer_size=50_000, batch_size=256, learning_starts=5_000, eval_every=5_000,
             )
-        overrides = _legacy(overrides)
+        overrides = _vice_as_reward_kwargs(overrides)
         unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise TypeError(f"unknown RLConfig fields {sorted(unknown)}")
@@ -138,7 +189,8 @@ class RLConfig:
 
     def __post_init__(self):
         if not isinstance(self.preset, str):
-            # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light" (without the preset's overrides).
+            # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light"
+            # (without the preset's overrides).
             self.preset = "light"
         self.train_bf16 = bool(self.train_bf16)
         self.overlap_env = bool(self.overlap_env)
@@ -151,8 +203,9 @@ class RLConfig:
         if self.drem_form is not None:
             check_form(self.drem_form)
         if self.shared_encoder and self.share_features_extractor:
-            raise ValueError("shared_encoder (the critic trains the extractor, on by default) and share_features_extractor "
-                             "(SB3's: the actor trains it) are two ways to share it; pick one, e.g. shared_encoder=False")
+            raise ValueError("shared_encoder (the critic trains the extractor, on by default) and "
+                             "share_features_extractor (SB3's: the actor trains it) are two ways to share it; "
+                             "pick one, e.g. shared_encoder=False")
         if not 0 < self.action_scale <= 1:
             raise ValueError(f"action_scale must be in (0, 1], got {self.action_scale}")
         if 128 % self.image_size:
@@ -160,7 +213,7 @@ class RLConfig:
 
     @property
     def uses_images(self) -> bool:
-        """Whether the policy sees any camera (if not, the env runs in ``state_dict`` obs mode and renders nothing for it)."""
+        """Whether the policy sees any camera (if not, the env runs in ``state_dict`` obs mode, rendering nothing)."""
         return len(self.cameras) > 0
 
     @property
@@ -204,7 +257,7 @@ class RLConfig:
 
         A config without ``shared_encoder`` is from a run trained with SB3's separate extractors.
         """
-        return cls(**{"shared_encoder": False, **_legacy(d)})
+        return cls(**{"shared_encoder": False, **_vice_as_reward_kwargs(d)})
 
     def save(self, path) -> None:
         """Write the config as JSON."""
@@ -238,8 +291,8 @@ def overlap_env_used(overlap_env: bool, reward: str, algo: str = "sac") -> bool:
     return REWARDS[reward].learner is None and hasattr(ALGOS[algo].cls, "train_while_env_steps")
 
 
-def _legacy(d: dict) -> dict:
-    """Run configs written before 0.1's re-layering: ``vice`` and ``vice_goal_seeds`` became ``reward_kwargs``."""
+def _vice_as_reward_kwargs(d: dict) -> dict:
+    """Run configs that name ``vice`` and ``vice_goal_seeds``, read as the ``reward_kwargs`` they mean."""
     d = dict(d)
     if "vice" in d or "vice_goal_seeds" in d:
         options = dict(d.pop("vice", {}) or {})

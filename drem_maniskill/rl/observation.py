@@ -49,7 +49,8 @@ class PolicyObservation(gym.ObservationWrapper):
         self.single_observation_space = spaces.Dict(single)
         b = env.unwrapped.num_envs
         self.observation_space = spaces.Dict(
-            {k: spaces.Box(np.broadcast_to(s.low, (b, *s.shape)), np.broadcast_to(s.high, (b, *s.shape)), (b, *s.shape), s.dtype)
+            {k: spaces.Box(np.broadcast_to(s.low, (b, *s.shape)), np.broadcast_to(s.high, (b, *s.shape)),
+                           (b, *s.shape), s.dtype)
              for k, s in single.items()})
 
     def observation(self, obs: dict) -> dict:

@@ -66,13 +66,15 @@ class MultimodalExtractor(BaseFeaturesExtractor):
                 encoders[key], total = nn.Sequential(*layers), total + camera_features
             elif key == "ft":
                 n = int(torch.tensor(space.shape).prod())
-                encoders[key] = nn.Sequential(nn.Flatten(), nn.Linear(n, 64), nn.ReLU(), nn.Linear(64, ft_features), nn.ReLU())
+                encoders[key] = nn.Sequential(nn.Flatten(), nn.Linear(n, 64), nn.ReLU(), nn.Linear(64, ft_features),
+                                              nn.ReLU())
                 total += ft_features
             else:
                 encoders[key], total = nn.Flatten(), total + int(torch.tensor(space.shape).prod())
             if key in normalize:
                 inner = encoders[key]
-                encoders[key] = nn.Sequential(RunningNorm(space.shape), *(inner if isinstance(inner, nn.Sequential) else [inner]))
+                layers = inner if isinstance(inner, nn.Sequential) else [inner]
+                encoders[key] = nn.Sequential(RunningNorm(space.shape), *layers)
         super().__init__(observation_space, features_dim=total)
         self.encoders = nn.ModuleDict(encoders)
 

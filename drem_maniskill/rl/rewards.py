@@ -57,23 +57,8 @@ def _drem(image_only: bool) -> Callable:
 
     def make(task: str, kwargs: dict) -> gym.Env:
         kwargs = dict(kwargs)
-        given = kwargs.pop("drem_checkpoint", None)
+        path = drem_checkpoints.resolve_checkpoint(task, kwargs.pop("drem_checkpoint", None), image_only=image_only)
         form = kwargs.pop("drem_form", "paper")
-        path = Path(given) if given else drem_checkpoints.default_checkpoint(task, image_only=image_only)
-        if given and not path.exists():
-            raise FileNotFoundError(f"reward checkpoint {path} (--reward-checkpoint) not found; make one with "
-                                    "`drem-maniskill train-reward`")
-        if not path.exists():
-            if image_only:
-                raise FileNotFoundError(
-                    f"reward 'drem-image' needs the image-only DREM checkpoint {path}, which is missing. Make it with "
-                    f"scripts/train_default_rewards.sh (it copies <out>/reward_image/drem.pt there), or by hand: "
-                    f"drem-maniskill train-reward --dataset <tree.h5> --modalities fixed wrist --out DIR, "
-                    f"then cp DIR/drem.pt {path}"
-                )
-            raise FileNotFoundError(f"reward 'drem' on {task} needs {path}; make it with "
-                                    + ("scripts/train_default_rewards.sh" if is_insertion_task(task)
-                                       else f"scripts/train_stock_rewards.sh {task}"))
         if is_insertion_task(task):
             return gym.make(task, reward_mode="drem", drem_checkpoint=str(path), drem_form=form, **kwargs)
         env = gym.make(task, reward_mode="sparse", **kwargs)
@@ -140,7 +125,8 @@ def _drem_spec(about: str, image_only: bool, **kwargs) -> RewardSpec:
 
 REWARDS: dict[str, RewardSpec] = {
     "sparse": RewardSpec("1 on success, else 0", env_reward_mode("sparse"), stock_tasks=True),
-    "dense": RewardSpec("the task's staged dense reward in [0, 1] (ManiSkill style)", env_reward_mode("normalized_dense")),
+    "dense": RewardSpec("the task's staged dense reward in [0, 1] (ManiSkill style)",
+                        env_reward_mode("normalized_dense")),
     "engineered": RewardSpec("-exp(kappa ||x - x_G||), the paper's Engineered", env_reward_mode("engineered")),
     "drem": _drem_spec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", False,
                        stock_tasks=True),
@@ -153,11 +139,17 @@ REWARDS: dict[str, RewardSpec] = {
 
 
 def reward_checkpoint(name: str, task: str, given: Optional[str] = None) -> Optional[Path]:
-    """The DREM checkpoint reward ``name`` reads on ``task`` (``given``, else the shipped one); None if it reads none."""
+    """The DREM checkpoint reward ``name`` reads on ``task`` (``given``, else the shipped one).
+
+    None if the reward reads none, or if the file is missing (making the env names it).
+    """
     spec = reward_spec(name)
     if not spec.checkpoint:
         return None
-    return Path(given) if given else drem_checkpoints.default_checkpoint(task, image_only=spec.image_only)
+    try:
+        return drem_checkpoints.resolve_checkpoint(task, given, image_only=spec.image_only)
+    except drem_checkpoints.CheckpointNotFoundError:
+        return None
 
 
 def reward_spec(name: str) -> RewardSpec:

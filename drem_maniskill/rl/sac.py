@@ -39,7 +39,8 @@ class SharedEncoderPolicy(MultiInputPolicy):
         # SB3's sharing trains the extractor through the actor; here the critic owns it.
         actor_params = [p for name, p in self.actor.named_parameters() if not name.startswith("features_extractor.")]
         self.actor.optimizer = self.optimizer_class(actor_params, lr=lr_schedule(1), **self.optimizer_kwargs)
-        self.critic.optimizer = self.optimizer_class(self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+        self.critic.optimizer = self.optimizer_class(self.critic.parameters(), lr=lr_schedule(1),
+                                                     **self.optimizer_kwargs)
 
 
 def _q_values(critic, features: th.Tensor, actions: th.Tensor) -> th.Tensor:

@@ -1,4 +1,6 @@
-"""``train-policy``: an RL algorithm of ``rl.algos.ALGOS`` (SAC) with a reward of ``rl.rewards.REWARDS``; evaluation, checkpoints, resume.
+"""``train-policy``: an algorithm of ``rl.algos.ALGOS`` (SAC) with a reward of ``rl.rewards.REWARDS``.
+
+Evaluation, checkpoints, resume.
 
 The run loop names no reward and no algorithm: both come from their tables by the config's
 ``reward`` and ``algo``. Run dir (``RLConfig.run_dir``)::
@@ -101,7 +103,10 @@ def _atomic_json(path: Path, data: dict) -> None:
 
 
 def save_run_checkpoint(run_dir: Path, config: RLConfig, model, learned, progress: dict) -> Path:
-    """Write the model (and replay buffer), a learned reward's state and progress to a new folder, then point ``latest.json`` at it."""
+    """Write the model (and replay buffer), a learned reward's state and progress to a new folder.
+
+    Then point ``latest.json`` at it.
+    """
     root = run_dir / "checkpoints"
     root.mkdir(parents=True, exist_ok=True)
     name = f"step_{model.num_timesteps}"
@@ -141,7 +146,8 @@ class RunCallback(BaseCallback):
     def _on_training_start(self) -> None:
         self.t0 = time.time()
         self.bar = progress_bar(total=self.total, initial=self.num_timesteps, unit="step",
-                                desc=f"{self.config.algo.upper()} {self.config.task} {self.config.reward} seed{self.config.seed}")
+                                desc=f"{self.config.algo.upper()} {self.config.task} {self.config.reward} "
+                                     f"seed{self.config.seed}")
         self.last_update = self.num_timesteps
         if not self.rows:
             self._evaluate()  # step 0: where every curve starts
@@ -200,7 +206,8 @@ def _check_resumable(saved: RLConfig, config: RLConfig) -> None:
     diff = {k: (v, now[k]) for k, v in _comparable(saved).items() if k not in RESUMABLE_FIELDS and v != now[k]}
     if diff:
         lines = ", ".join(f"{k}: saved {a!r}, now {b!r}" for k, (a, b) in diff.items())
-        raise ValueError(f"{config.run_dir} holds a run with another config ({lines}); use another --out or the same options")
+        raise ValueError(f"{config.run_dir} holds a run with another config ({lines}); "
+                         "use another --out or the same options")
 
 
 def file_sha256(path) -> str:
@@ -252,7 +259,8 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
     config.save(run_dir / "config.json")
     pinned = pin_reward_checkpoint(config, run_dir, resuming=ckpt is not None)
 
-    progress = json.loads((ckpt / "progress.json").read_text()) if ckpt else dict(num_timesteps=0, wall_time=0.0, eval_rows=0)
+    fresh = dict(num_timesteps=0, wall_time=0.0, eval_rows=0)
+    progress = json.loads((ckpt / "progress.json").read_text()) if ckpt else fresh
     rows = read_eval_csv(run_dir / "eval.csv")
     # Rows written after the checkpoint (an interruption between the two) belong to a future that is re-run.
     rows = [r for r in rows if r["steps"] <= progress["num_timesteps"]] if ckpt else []

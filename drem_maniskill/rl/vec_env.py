@@ -74,7 +74,8 @@ class ManiSkillDictVecEnv(VecEnv):
         self._returns += rew
         self._lengths += 1
         self._success_once |= success
-        done = (_to_numpy(truncated).reshape(-1) if np.ndim(_to_numpy(truncated)) else np.full(self.num_envs, bool(truncated)))
+        truncated = _to_numpy(truncated)
+        done = truncated.reshape(-1) if np.ndim(truncated) else np.full(self.num_envs, bool(truncated))
         done = done | (self._lengths >= self.horizon)
         # Ended by success: a terminal state, whose value SB3 must not bootstrap (TimeLimit.truncated False).
         terminal = success.astype(bool) if self.terminate_on_success else np.zeros(self.num_envs, bool)

@@ -13,13 +13,17 @@ def first_leaf(tree: dict):
 
 def state_at(states: dict, index: int) -> dict:
     """Step ``index`` of a recorded state tree (every leaf ``[T, ...]``), as a batch of one."""
-    return {k: (state_at(v, index) if isinstance(v, dict) else torch.as_tensor(v[index : index + 1])) for k, v in states.items()}
+    return {k: (state_at(v, index) if isinstance(v, dict) else torch.as_tensor(v[index : index + 1]))
+            for k, v in states.items()}
 
 
 def broadcast_state(state: dict, n: int) -> dict:
     """A batch-of-one state repeated to ``n`` envs (copies, so the envs can diverge)."""
-    return {k: (broadcast_state(v, n) if isinstance(v, dict) else torch.as_tensor(v).expand(n, *torch.as_tensor(v).shape[1:]).clone())
-            for k, v in state.items()}
+    def repeat(v):
+        v = torch.as_tensor(v)
+        return v.expand(n, *v.shape[1:]).clone()
+
+    return {k: (broadcast_state(v, n) if isinstance(v, dict) else repeat(v)) for k, v in state.items()}
 
 
 def flatten_state(state: dict) -> torch.Tensor:

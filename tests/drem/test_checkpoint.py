@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 
 import gymnasium as gym
 import pytest
@@ -70,3 +71,22 @@ def test_shipped_checkpoints_load_by_default(task):
         assert reward.shape == (1,) and reward.item() < 0.5
     finally:
         env.close()
+
+
+def test_resolve_checkpoint_is_the_given_path_or_the_shipped_one(tmp_path, monkeypatch):
+    import drem_maniskill.drem.checkpoint as checkpoints
+    from drem_maniskill.drem.checkpoint import CheckpointNotFoundError, resolve_checkpoint
+
+    monkeypatch.setattr(checkpoints, "REWARDS_DIRS", (tmp_path / "rewards",))
+    shipped = Path(save_checkpoint(str(tmp_path / "rewards" / "X-v1" / "drem.pt"), {"env_id": "X-v1"}, {}))
+    assert resolve_checkpoint("X-v1") == shipped
+    own = Path(save_checkpoint(str(tmp_path / "own.pt"), {"env_id": "X-v1"}, {}))
+    assert resolve_checkpoint("X-v1", str(own)) == own
+    # One error for every missing file: what was looked for, and the commands that make one.
+    with pytest.raises(CheckpointNotFoundError, match=r"no image-only DREM checkpoint ships for X-v1 .*drem_image\.pt"
+                       r".*build-reward --task X-v1.*--model-modalities fixed wrist.*copy it to"):
+        resolve_checkpoint("X-v1", image_only=True)
+    with pytest.raises(FileNotFoundError, match=r"nowhere\.pt not found\. Build one with `drem-maniskill build-reward"):
+        resolve_checkpoint("X-v1", str(tmp_path / "nowhere.pt"))
+    with pytest.raises(CheckpointError, match=r"nowhere\.pt not found\. Build one"):
+        load_checkpoint(str(tmp_path / "nowhere.pt"))

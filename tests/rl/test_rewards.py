@@ -22,8 +22,8 @@ def test_unknown_reward_is_a_clear_error(capsys):
 def test_missing_image_only_checkpoint_names_the_file(tmp_path, monkeypatch):
     import drem_maniskill.drem.checkpoint as checkpoints
 
-    monkeypatch.setattr(checkpoints, "default_checkpoint", lambda task, image_only=False: tmp_path / task / "drem_image.pt")
-    with pytest.raises(FileNotFoundError, match=r"drem_image\.pt.*train-reward .*--modalities fixed wrist"):
+    monkeypatch.setattr(checkpoints, "REWARDS_DIRS", (tmp_path,))
+    with pytest.raises(FileNotFoundError, match=r"drem_image\.pt.*train-reward .*--model-modalities fixed wrist"):
         REWARDS["drem-image"].make("PegInHole-v1", {})
 
 
@@ -38,7 +38,8 @@ def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
     from tests.conftest import tiny_stock_checkpoint
 
     ckpt = Path(tiny_stock_checkpoint(tmp_path / "drem.pt", env_id="PlugCharger-v1"))
-    monkeypatch.setattr(checkpoints, "default_checkpoint", lambda task, image_only=False: ckpt if task == "PlugCharger-v1" else None)
+    monkeypatch.setattr(checkpoints, "default_checkpoint",
+                        lambda task, image_only=False: ckpt if task == "PlugCharger-v1" else tmp_path / "none.pt")
     sparse = RLConfig.preset("light", task="PlugCharger-v1", reward="sparse")
     assert not sparse.uses_ft
     env, vice = make_env(sparse, for_eval=True)
@@ -79,7 +80,7 @@ def test_a_run_can_name_its_own_reward_checkpoint(tmp_path):
         assert default_checkpoint("PegInHole-v1") != ckpt
     finally:
         env.close()
-    with pytest.raises(FileNotFoundError, match=r"nowhere\.pt \(--reward-checkpoint\) not found"):
+    with pytest.raises(FileNotFoundError, match=r"nowhere\.pt not found.*--reward-checkpoint PATH"):
         make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=str(tmp_path / "nowhere.pt")), for_eval=True)
     with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):
         make_env(RLConfig.preset("state", reward="engineered", reward_checkpoint=ckpt), for_eval=True)
