@@ -10,7 +10,7 @@ from drem_maniskill.drem.checkpoint import save_checkpoint
 from drem_maniskill.drem.model import DREMModel, ModelConfig
 from drem_maniskill.envs import TASKS  # noqa: F401  (the tests' task parameter; importing registers the tasks)
 from drem_maniskill.experts import get_policy, record_expert, rollout
-from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
+from drem_maniskill.pipeline import SamplerConfig, backward_sample
 from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
 from drem_maniskill.version import __version__
 
@@ -43,14 +43,18 @@ def pipeline(tmp_path_factory):
     return dict(root=root, expert=rec.h5_path, tree=tree, checkpoint=ckpt)
 
 
-def tiny_checkpoint(path, env_id: str, modalities=("fixed", "wrist", "ft"), camera_uids=("fixed_camera", "wrist_camera")) -> str:
-    """An untrained, tiny DREM checkpoint for ``env_id`` (stock tasks: ``modalities=("fixed", "wrist")`` and their cameras)."""
+def tiny_checkpoint(path, env_id: str, modalities=("fixed", "wrist", "ft"),
+                    camera_uids=("fixed_camera", "wrist_camera")) -> str:
+    """An untrained, tiny DREM checkpoint for ``env_id``.
+
+    Stock tasks: ``modalities=("fixed", "wrist")`` and their cameras.
+    """
     torch.manual_seed(0)
     config = ModelConfig(modalities=modalities, image_size=64, image_dim=8, latent_dim=16, channels=(4,) * 6)
     model = DREMModel(config)
     header = dict(env_id=env_id, env_kwargs={}, modalities=list(config.modalities), camera_uids=list(camera_uids),
-                  image_size=config.image_size, ft_history=config.ft_history, render_style="lean", model=config.to_dict(),
-                  train={}, sampler={}, package_version=__version__)
+                  image_size=config.image_size, ft_history=config.ft_history, render_style="lean",
+                  model=config.to_dict(), train={}, sampler={}, package_version=__version__)
     weights = {f"model.{k}": v for k, v in model.state_dict().items()}
     weights["h_start"], weights["h_goal"] = torch.randn(16), torch.randn(16)
     return save_checkpoint(str(path), header, weights)

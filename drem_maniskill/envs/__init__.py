@@ -53,7 +53,10 @@ def is_insertion_task(env_id: str) -> bool:
 
 
 def check_env_id(env_id: str) -> str:
-    """``env_id`` if ManiSkill's registry knows it (``module:id`` allowed), else ``UnknownTaskError`` listing the ids."""
+    """``env_id`` if ManiSkill's registry knows it (``module:id`` allowed).
+
+    Otherwise ``UnknownTaskError`` listing the ids.
+    """
     if env_id.split(":")[-1] in REGISTERED_ENVS:
         return env_id
     ours = list(TASKS) + list(DREM_ALIASES)

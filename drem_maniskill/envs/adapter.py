@@ -32,6 +32,41 @@ from drem_maniskill.utils.state import flatten_state, unflatten_like
 DRIVE_KEY = "drem_drive_targets"
 
 
+@dataclass(frozen=True)
+class SocketGeometry:
+    """Where the opening is, in the socket frame (origin at the opening's centre on the top face, z up; metres)."""
+
+    opening_radius: float
+    """A tip below ``inserted_height`` and this close to the axis is in the opening."""
+    inserted_height: float
+    """A tip lower than this is in the opening or beside the socket's block."""
+    face_seed_height: float
+    """A tip above this is on or over the face, not caught in the opening's mouth."""
+    socket_height: float
+    """The top face's height above the floor."""
+
+    def in_opening(self, tip) -> np.ndarray:
+        """Bool ``[n]``: rows of tip positions ``[n, 3]`` (socket frame) that are in the opening."""
+        tip = np.asarray(tip)
+        return (tip[:, 2] < self.inserted_height) & (np.linalg.norm(tip[:, :2], axis=1) <= self.opening_radius)
+
+    @classmethod
+    def of_task(cls, task) -> Optional["SocketGeometry"]:
+        """The geometry of an insertion task (class or instance), or None for any other env."""
+        if not (isinstance(task, InsertionEnv) or (isinstance(task, type) and issubclass(task, InsertionEnv))):
+            return None
+        return cls(float(task.opening_radius), float(task.inserted_height), float(task.face_seed_height),
+                   float(task.socket_height))
+
+
+def socket_geometry_of(env_id: str) -> Optional[SocketGeometry]:
+    """The socket geometry of a registered env id without making the env (None: not one of our insertion tasks)."""
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    spec = REGISTERED_ENVS.get(env_id)
+    return None if spec is None else SocketGeometry.of_task(spec.cls)
+
+
 def camera_map_for(env) -> dict:
     """Role -> camera uid of ``env`` (``fixed`` always, ``wrist`` when it has a wrist camera)."""
     roles = camera_roles(env_cameras(env))
@@ -105,6 +140,10 @@ class EnvAdapter:
     def tip_in_socket(self) -> Optional[torch.Tensor]:
         """The part tip's position in the socket frame ``[B, 3]`` (our tasks; for reports on the tree), else None."""
         return self.env.tip_pose_in_socket().p if isinstance(self.env, InsertionEnv) else None
+
+    def socket_geometry(self) -> Optional[SocketGeometry]:
+        """Where the opening is around the socket frame (our tasks), or None on an env without a socket."""
+        return SocketGeometry.of_task(self.env)
 
     def ft(self) -> Optional[torch.Tensor]:
         """Wrist F/T history ``[B, H, 6]``, or None without our sensor."""

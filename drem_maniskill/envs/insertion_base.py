@@ -85,6 +85,15 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
     side_contact: float = 0.0  # tip-to-axis distance along the socket's x where the part touches the block's side
     yaw_symmetry: int = 0  # 0: round part (yaw free); k: part repeats every 2*pi/k
     max_yaw_error: float = np.pi  # insertion tolerance on yaw (keyed parts)
+    # Regions of the tip around the opening (socket frame), which the sampler's extra phases and the tree's report read
+    # (``EnvAdapter.socket_geometry``). The blocks of both tasks are solid beyond ``opening_radius`` (the USB port's
+    # housing reaches 8.75 mm, the plug's shell 2.25 mm more), so a tip lower than ``inserted_height`` and within it is
+    # in the opening, and one lower and farther out is beside the socket.
+    opening_radius: float = 0.01
+    inserted_height: float = -0.001
+    # A tip above this is on or over the face, not caught in the opening's mouth: at -0.5 mm a lineage from the USB
+    # entry seed stayed 0.4-0.5 mm in the mouth for all its face steps.
+    face_seed_height: float = -0.0002
 
     # --- randomization and start region ---
     socket_center = (0.55, 0.0)
@@ -381,7 +390,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
 
     @staticmethod
     def _socket_pose_at(xy: torch.Tensor, yaw: torch.Tensor, z: torch.Tensor) -> Pose:
-        """The socket's pose ``[B]``: at ``xy`` ``[B, 2]`` on the floor, turned by ``yaw`` ``[B]``, its base at ``z`` ``[B]``."""
+        """The socket's pose ``[B]``: at ``xy`` ``[B, 2]`` on the floor, turned by ``yaw``, its base at ``z``."""
         return Pose.create_from_pq(torch.cat([xy, z[:, None]], dim=1), _yaw_quat(yaw))
 
     def place_socket(self, placements) -> None:
@@ -412,7 +421,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         return self.tip_pose_in_socket().p[:, 2] > self.start_region_height
 
     def orientation_errors(self, rel: Pose):
-        """Tilt and absolute yaw error ``[B]`` (rad) of a part pose in the socket frame, as the success test reads them."""
+        """Tilt and absolute yaw error ``[B]`` (rad) of a part pose in the socket frame, as the success test reads."""
         rot = quaternion_to_matrix(rel.q)
         tilt = torch.arccos(rot[:, 2, 2].clamp(-1, 1))
         yaw = torch.atan2(rot[:, 1, 0], rot[:, 0, 0])

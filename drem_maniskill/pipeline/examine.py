@@ -26,6 +26,7 @@ from scipy.stats import spearmanr
 
 from drem_maniskill.drem.wrapper import DREMRewardWrapper
 from drem_maniskill.envs import is_insertion_task
+from drem_maniskill.envs.adapter import SocketGeometry
 from drem_maniskill.experts import ee_control_kwargs, get_policy, rollout
 from drem_maniskill.experts.scripted import CONTACT_FORCE, PRESS_DEPTH, HoldPolicy
 from drem_maniskill.experts.stock import STOCK_EXPERTS
@@ -137,7 +138,7 @@ def hold_targets(env) -> dict:
     the block's top edge with its shell beside the block (on the peg nothing stops it before the target).
     """
     u = env.unwrapped
-    floor = -(float(u.socket_height) + PRESS_DEPTH)
+    floor = -(SocketGeometry.of_task(u).socket_height + PRESS_DEPTH)
     # Reached straight down from above it (hold_vias): a line from the start would land on the top face.
     side = (_beside_side(env), 0.0, -SIDE_DOWN)
     pushed = (-(float(u.side_contact) - 0.001), 0.0, -SIDE_DOWN - SIDE_PUSH)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import h5py
 import pytest
 
@@ -25,13 +27,15 @@ def test_tree_report_places_nodes_around_the_opening(tmp_path):
 
     from drem_maniskill.pipeline.dataset import tree_report
 
-    tip = np.array([[0, 0, -0.02], [0, 0, -0.005], [0.001, 0, 0.004], [0.005, 0, 0.003], [0.004, 0, 0.0], [0.05, 0, 0.05],
+    tip = np.array([[0, 0, -0.02], [0, 0, -0.005], [0.001, 0, 0.004], [0.005, 0, 0.003], [0.004, 0, 0.0],
+                    [0.05, 0, 0.05],
                     [0.06, 0.02, -0.045]])
     force = np.array([0.0, 2.0, 0.0, 0.0, 8.0, 0.0, 20.0])
     ft = np.zeros((len(tip), 8, 6), np.float32)
     ft[:, -1, 2] = -force
     with h5py.File(tmp_path / "tree.h5", "w") as f:
         f["tip_in_socket"], f["depth"], f["ft"] = tip, np.array([0, 1, 3, 4, 4, 9, 12]), ft
+        f.attrs["header"] = json.dumps(dict(env_id="PegInHole-v1"))  # the opening's geometry: the task's
     report = tree_report(str(tmp_path / "tree.h5"))
     assert report["inserted"] == dict(nodes=2, depth_mean=0.5, depth_min=0, depth_max=1)
     assert report["above, centred"]["nodes"] == 1 and report["above, centred"]["depth_min"] == 3
@@ -42,3 +46,69 @@ def test_tree_report_places_nodes_around_the_opening(tmp_path):
     with h5py.File(tmp_path / "stock.h5", "w") as f:
         f["depth"] = np.zeros(1)
     assert tree_report(str(tmp_path / "stock.h5")) == {}
+
+
+def test_a_tree_records_its_socket_geometry_and_older_ones_read_their_tasks(tmp_path):
+    """The opening's geometry comes from the task (the tree's header, else its env's class); a stock task has none."""
+    import numpy as np
+
+    from drem_maniskill.envs.adapter import SocketGeometry, socket_geometry_of
+    from drem_maniskill.pipeline.tree.tree_file import tree_geometry
+
+    usb = socket_geometry_of("USBInsertion-v1")
+    assert usb.opening_radius == 0.01 and usb.inserted_height == -0.001 and usb.socket_height > 0.02
+    assert socket_geometry_of("PegInsertionSide-v1") is None and socket_geometry_of("NoSuchEnv-v0") is None
+    assert list(usb.in_opening(np.array([[0, 0, -0.005], [0.02, 0, -0.005], [0, 0, 0.001]]))) == [True, False, False]
+    recorded = SocketGeometry(0.02, -0.002, 0.0, 0.03)
+    with h5py.File(tmp_path / "new.h5", "w") as f:
+        f.attrs["header"] = json.dumps(dict(env_id="USBInsertion-v1", socket_geometry=recorded.__dict__))
+        assert tree_geometry(f) == recorded
+    with h5py.File(tmp_path / "stock.h5", "w") as f:
+        f.attrs["header"] = json.dumps(dict(env_id="PegInsertionSide-v1"))
+        with pytest.raises(ValueError, match="no opening"):
+            tree_geometry(f)
+
+
+def test_an_unfinished_or_foreign_file_names_the_command_that_makes_a_tree(tmp_path):
+    from drem_maniskill.pipeline.dataset import dataset_modalities
+    from drem_maniskill.pipeline.tree.tree_file import open_tree
+
+    with pytest.raises(FileNotFoundError, match="drem-maniskill sample"):
+        open_tree(tmp_path / "none.h5")
+    (tmp_path / "junk.h5").write_bytes(b"not hdf5")
+    with pytest.raises(ValueError, match="drem-maniskill sample"):
+        open_tree(tmp_path / "junk.h5")
+    with h5py.File(tmp_path / "partial.h5", "w") as f:
+        f.attrs["header"] = "{}"
+    with pytest.raises(ValueError, match="unfinished.*drem-maniskill sample"):
+        open_tree(tmp_path / "partial.h5")
+    with h5py.File(tmp_path / "other.h5", "w") as f:
+        f.attrs["complete"] = True
+    with pytest.raises(ValueError, match="not a progress tree.*drem-maniskill sample"):
+        open_tree(tmp_path / "other.h5")
+    # The default modalities: TreeDataset says what is wrong with the file.
+    assert dataset_modalities(str(tmp_path / "partial.h5")) == ("fixed", "wrist", "ft")
+
+
+@pytest.mark.slow
+def test_a_tree_with_the_flat_config_of_older_versions_still_loads_with_the_nested_one(pipeline, tmp_path):
+    """Trees sampled before the config was nested record the flat form; the dataset hands on the nested one."""
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.pipeline.dataset import TreeDataset
+    from drem_maniskill.pipeline.tree.config import SamplerConfig
+
+    old = tmp_path / "old.h5"
+    old.write_bytes(open(pipeline["tree"], "rb").read())
+    with h5py.File(old, "a") as f:
+        header = json.loads(f.attrs["header"])
+        header["config"] = dict(num_children=4, max_depth=40, outward_depth=0, face_children=60, goal_presses=0)
+        del header["socket_geometry"]
+        f.attrs["header"] = json.dumps(header)
+    config = ModelConfig(image_size=64)
+    data = TreeDataset(str(old), config)
+    assert data.header["config"] == SamplerConfig.preset("tiny").to_dict()
+    assert TreeDataset(pipeline["tree"], config).header["config"] == data.header["config"]
+    with h5py.File(old, "a") as f:
+        f.attrs["header"] = json.dumps({**header, "config": dict(wiggle_depth=3)})
+    with pytest.raises(ValueError, match="wiggle_depth.*drem-maniskill sample"):
+        TreeDataset(str(old), config)

@@ -12,18 +12,18 @@ import pytest
 from drem_maniskill.envs import TASKS, PegInHoleEnv
 from drem_maniskill.experts.scripted import HoldPolicy
 from drem_maniskill.pipeline.examine import HOLD_POSITIONS
-from drem_maniskill.pipeline.sampling import (
-    FACE_SEED_HEIGHT,
-    ChildSampler,
-    NoStartRegionError,
-    SamplerConfig,
-    backward_sample,
-    face_directions,
-    outward_directions,
-)
-from drem_maniskill.pipeline import sampling
-from drem_maniskill.pipeline.dataset import INSERTED_HEIGHT as FACE_ENTRY_HEIGHT
-from drem_maniskill.pipeline.dataset import face_entry_depth, in_opening
+from drem_maniskill.envs.adapter import SocketGeometry
+from drem_maniskill.pipeline.tree import tree_file
+from drem_maniskill.pipeline.tree.backward import NoStartRegionError, backward_sample
+from drem_maniskill.pipeline.tree.child_sampler import ChildSampler
+from drem_maniskill.pipeline.tree.config import SamplerConfig
+from drem_maniskill.pipeline.tree.phases.face import face_directions
+from drem_maniskill.pipeline.tree.phases.outward import outward_directions
+from drem_maniskill.pipeline.tree.tree_file import face_entry_depth
+
+GEOMETRY = SocketGeometry.of_task(PegInHoleEnv)
+in_opening = GEOMETRY.in_opening
+FACE_ENTRY_HEIGHT, FACE_SEED_HEIGHT = GEOMETRY.inserted_height, GEOMETRY.face_seed_height
 
 
 @pytest.mark.slow
@@ -51,37 +51,39 @@ def test_progress_tree_structure(pipeline):
 
 @pytest.mark.slow
 def _count_depths(monkeypatch) -> list:
-    """Record the depth of every ``_append_depth`` call from now on (what a resumed run samples again)."""
-    calls, real = [], sampling._append_depth
+    """Record the depth of every ``append_depth`` call from now on (what a resumed run samples again)."""
+    calls, real = [], tree_file.append_depth
 
     def counted(path, data, depth, chosen, **kwargs):
         calls.append(kwargs.get("group") or depth)
         return real(path, data, depth, chosen, **kwargs)
 
-    monkeypatch.setattr(sampling, "_append_depth", counted)
+    monkeypatch.setattr(tree_file, "append_depth", counted)
     return calls
 
 
 def _interrupt_then_resume(expert: str, out, config: SamplerConfig, monkeypatch, stop_at) -> list:
-    """Sample until ``stop_at(path, depth, chosen, kwargs)`` says so (KeyboardInterrupt), then resume; the resume's ``_count_depths``."""
-    real_append = sampling._append_depth
+    """Sample until ``stop_at(path, depth, chosen, kwargs)`` says so (KeyboardInterrupt), then resume; the resume's
+    ``_count_depths``."""
+    real_append = tree_file.append_depth
 
     def interrupted(path, data, depth, chosen, **kwargs):
         if stop_at(path, depth, chosen, kwargs):
             raise KeyboardInterrupt
         return real_append(path, data, depth, chosen, **kwargs)
 
-    monkeypatch.setattr(sampling, "_append_depth", interrupted)
+    monkeypatch.setattr(tree_file, "append_depth", interrupted)
     with pytest.raises(KeyboardInterrupt):
         backward_sample(expert, str(out), config, progress=False)
-    monkeypatch.setattr(sampling, "_append_depth", real_append)
+    monkeypatch.setattr(tree_file, "append_depth", real_append)
     calls = _count_depths(monkeypatch)
     backward_sample(expert, str(out), config, progress=False)
     return calls
 
 
 def _finished_tree_to_grow(expert: str, out, config: SamplerConfig) -> int:
-    """Sample a complete tree at ``out`` and leave it as ``out``'s partial file, as a run growing it finds it; its node count."""
+    """Sample a complete tree at ``out`` and leave it as ``out``'s partial file, as a run growing it finds it; its node
+    count."""
     backward_sample(expert, str(out), config, progress=False)
     with h5py.File(out, "r") as f:
         n = len(f["depth"])
@@ -121,7 +123,8 @@ def test_outward_lineages_leave_the_start_region_along_their_directions_and_resu
     out = tmp_path / "tree.h5"
     calls = _interrupt_then_resume(  # interrupted in the outward phase's second depth, then resumed
         pipeline["expert"], out, config, monkeypatch,
-        lambda path, depth, chosen, kw: len(chosen) == 4 and depth == int(h5py.File(path, "r").attrs["start_depth"]) + 2)
+        lambda path, depth, chosen, kw: len(chosen) == 4
+        and depth == int(h5py.File(path, "r").attrs["start_depth"]) + 2)
     assert calls == [calls[0] + i for i in range(len(calls))] and len(calls) == 2  # outward depths 2 and 3 only
     with h5py.File(out, "r") as f, h5py.File(pipeline["tree"], "r") as ref:
         start, final = int(f.attrs["start_depth"]), int(f.attrs["final_depth"])
@@ -140,7 +143,7 @@ def test_outward_lineages_leave_the_start_region_along_their_directions_and_resu
             if d > start + 1:  # each lineage's children hang under its own previous seed
                 kids = np.nonzero(depth == d)[0].reshape(4, 6)
                 assert np.all(parent[kids] == np.nonzero(seed & (depth == d - 1))[0][:, None])
-            along.append(np.einsum("lx,lx->l", tcp[seeds, :3] - origin, outward_directions(config)))
+            along.append(np.einsum("lx,lx->l", tcp[seeds, :3] - origin, outward_directions(config.phases["outward"])))
         along = np.array(along)
         # Each lineage moves away along its own direction, a centimetre or more in three steps.
         assert np.all(np.diff(along, axis=0) > 0) and np.all(along[-1] > 0.01), along
@@ -209,7 +212,7 @@ def test_each_child_is_moved_to_its_own_socket_placement_which_does_not_change_i
 def test_shipped_expert_demos_reach_the_goal(task):
     from pathlib import Path
 
-    from drem_maniskill.pipeline.sampling import load_expert
+    from drem_maniskill.pipeline.tree.expert import load_expert
     from drem_maniskill.utils.state import broadcast_state, state_at
 
     expert = load_expert(str(Path(__file__).parents[2] / "tasks" / task / "expert.h5"))
@@ -227,7 +230,7 @@ def test_shipped_expert_demos_reach_the_goal(task):
 
 def test_actions_follow_the_experts_step_when_asked():
     """expert_step_scale: the action range at depth d is k times the expert's step there, within the bounds."""
-    from drem_maniskill.pipeline.sampling import action_scale_at
+    from drem_maniskill.pipeline.tree.backward import action_scale_at
 
     # An expert that moves 1 cm per step, then 2 mm per step over its last three steps.
     x = np.array([0.0, 0.01, 0.02, 0.03, 0.032, 0.034, 0.036])
@@ -245,24 +248,27 @@ def test_lineages_never_keep_a_child_caught_in_the_opening_and_do_not_keep_the_c
     """A face lineage takes a child on the face over a farther one caught in the opening's mouth, or, all caught,
     the least deep; a side lineage takes one beside the block over one in the opening; children in the opening are
     not kept (they are labelled by their lineage, and may be a step from the goal)."""
-    from drem_maniskill.pipeline.sampling import _caught_penalty, _farthest_along, _out_of_opening
+    from drem_maniskill.pipeline.tree.phases.base import caught_penalty, farthest_along, out_of_opening
 
     directions = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     ee, tip = np.zeros((6, 3)), np.zeros((6, 3))  # 2 lineages x 3 children; metres, tips in the socket frame
     ee[:3, 0], tip[:3] = [0.003, 0.001, 0.004], [[0.0005, 0, -0.0004], [0.0015, 0, 0.0001], [0.0003, 0, -0.005]]
     ee[3:, 1], tip[3:, 2] = [0.003, 0.002, 0.001], [-0.0006, -0.0003, -0.002]  # all three in the mouth
-    chosen = _farthest_along(ee, np.zeros(3), directions, _caught_penalty(tip, side=False))
+    chosen = farthest_along(ee, np.zeros(3), directions, caught_penalty(tip, GEOMETRY, side=False))
     assert list(chosen) == [1, 4]  # on the face, not 2 mm farther in the mouth; the least deep of the caught
-    assert list(_farthest_along(ee, np.zeros(3), directions)) == [2, 3]  # what the distance alone would take
-    kept, new, dropped = _out_of_opening(dict(tip_in_socket=tip, ee=ee, parent=np.arange(6)), chosen)
+    assert list(farthest_along(ee, np.zeros(3), directions)) == [2, 3]  # what the distance alone would take
+    kept, new, dropped = out_of_opening(dict(tip_in_socket=tip, ee=ee, parent=np.arange(6)), chosen, GEOMETRY)
     assert list(in_opening(tip)) == [False, False, True, False, False, True] and dropped == 2
     assert list(kept["parent"]) == [0, 1, 3, 4] and list(kept["parent"][new]) == [1, 4]
     assert not in_opening(kept["tip_in_socket"]).any()
-    # Side phase: down the block's side (2 cm off the axis, 10 mm down) is where it should go; 5 mm down the opening is not.
-    side_tip = np.array([[0.002, 0, -0.005], [0.02, 0, -0.01], [0.0, 0, 0.001], [0, 0.012, -0.002], [0, 0.003, -0.004], [0, 0, 0]])
+    # Side phase: down the block's side (2 cm off the axis, 10 mm down) is where it should go; 5 mm down the opening
+    # is not.
+    side_tip = np.array([[0.002, 0, -0.005], [0.02, 0, -0.01], [0.0, 0, 0.001], [0, 0.012, -0.002],
+                         [0, 0.003, -0.004], [0, 0, 0]])
     side_ee = np.array([[0.005, 0, 0], [0.004, 0, 0], [0.0, 0, 0], [0, 0.002, 0], [0, 0.006, 0], [0, 0, 0]])
-    assert list(_farthest_along(side_ee, np.zeros(3), directions, _caught_penalty(side_tip, side=True))) == [1, 3]
-    _, _, dropped = _out_of_opening(dict(tip_in_socket=side_tip), np.zeros(0, np.int64))
+    penalty = caught_penalty(side_tip, GEOMETRY, side=True)
+    assert list(farthest_along(side_ee, np.zeros(3), directions, penalty)) == [1, 3]
+    _, _, dropped = out_of_opening(dict(tip_in_socket=side_tip), np.zeros(0, np.int64), GEOMETRY)
     assert dropped == 2
 
 
@@ -295,10 +301,12 @@ def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(
                 kids = n + sum(24 - d for d in dropped[: k - 1]) + np.arange(24 - dropped[k - 1])
                 per_seed = [(f["parent"][()][kids] == s).sum() for s in f[f"seeds/face_{k - 1}/node"][()]]
                 assert max(per_seed) <= 6 and sum(per_seed) == 24 - dropped[k - 1]
-            flat = face_directions(config)[:, :2]
-            along.append(np.einsum("lx,lx->l", tcp[seeds, :2] - tcp[entry_node, :2], flat / np.linalg.norm(flat, axis=1, keepdims=True)))
+            flat = face_directions(config.phases["face"])[:, :2]
+            flat = flat / np.linalg.norm(flat, axis=1, keepdims=True)
+            along.append(np.einsum("lx,lx->l", tcp[seeds, :2] - tcp[entry_node, :2], flat))
         along = np.array(along)
-        # Each lineage slides away from the opening along its own direction, a millimetre or more in three steps (of 6 children each).
+        # Each lineage slides away from the opening along its own direction, a millimetre or more in three steps (of 6
+        # children each).
         assert np.all(np.diff(along, axis=0) > 0) and np.all(along[-1] > 0.001), along
 
 
@@ -309,8 +317,9 @@ def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_th
     face = SamplerConfig.preset("tiny", face_depth=2, face_lineages=4, face_children=6)
     out = tmp_path / "tree.h5"
     backward_sample(pipeline["expert"], str(out), face, progress=False)
-    with pytest.raises(ValueError, match="--face-depth"):
-        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", side_depth=2), progress=False)
+    with pytest.raises(ValueError, match="face.depth"):
+        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", side_depth=2),
+                        progress=False)
     grown = tmp_path / "grown.h5"
     grown.with_name(grown.name + ".partial").write_bytes(out.read_bytes())
     side = SamplerConfig.preset("tiny", face_depth=2, face_lineages=4, face_children=6, side_depth=3, side_children=6)
@@ -328,19 +337,23 @@ def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_th
         assert np.array_equal(f["depth"][n:], np.repeat(entry + 2 + np.arange(1, 4), [24 - d for d in dropped]))
         parent, tcp = f["parent"][()], f["tcp_pose"][()]
         per_seed = [(parent[n : n + 24 - dropped[0]] == s).sum() for s in f["seeds/face_2/node"][()]]
-        assert max(per_seed) <= 6 and sum(per_seed) == 24 - dropped[0]  # six from each face lineage's end, less those dropped
-        directions = face_directions(side, side.side_elevation)
+        # Six from each face lineage's end, less those dropped.
+        assert max(per_seed) <= 6 and sum(per_seed) == 24 - dropped[0]
+        directions = face_directions(side.phases["face"], side.phases["side"].elevation)
         assert np.all(directions[:, 2] < -0.8)  # steeply down
         origin = tcp[int(f["seeds/depth_%d/node" % entry][0]), :3]
-        along = np.array([np.einsum("lx,lx->l", tcp[f[f"seeds/side_{k}/node"][()], :3] - origin, directions) for k in range(1, 4)])
+        along = np.array([np.einsum("lx,lx->l", tcp[f[f"seeds/side_{k}/node"][()], :3] - origin, directions)
+                          for k in range(1, 4)])
         assert np.all(np.diff(along, axis=0) > 0), along  # each lineage goes on along its own direction
-    assert json.loads(h5py.File(grown, "r").attrs["header"])["config"]["side_depth"] == 3
+    assert json.loads(h5py.File(grown, "r").attrs["header"])["config"]["phases"]["side"]["depth"] == 3
 
 
 @pytest.mark.slow
-def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_one_depth_past_it(pipeline, tmp_path, monkeypatch):
-    """Push children: from each face and side seed, full-range actions, labelled one past the seed, never seeds; resumable."""
-    from drem_maniskill.pipeline.sampling import push_groups
+def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_one_depth_past_it(pipeline, tmp_path,
+                                                                                               monkeypatch):
+    """Push children: from each face and side seed, full-range actions, labelled one past the seed, never seeds;
+    resumable."""
+    from drem_maniskill.pipeline.tree.phases.push import push_groups
 
     base = dict(face_depth=2, face_lineages=4, face_children=6, side_depth=1, side_children=6)
     grown = tmp_path / "tree.h5"
@@ -357,9 +370,11 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
         kids = np.arange(n, len(depth))
         assert not in_opening(f["tip_in_socket"][n:]).any()
         seeds = np.concatenate([f[f"seeds/{g}/node"][()] for g in push_groups(config)])
-        assert np.all(np.isin(parent[kids], seeds)) and np.all(np.diff(parent[kids]) >= 0)  # from the seeds, in group order
+        # From the seeds, in group order.
+        assert np.all(np.isin(parent[kids], seeds)) and np.all(np.diff(parent[kids]) >= 0)
         per_seed = [(parent[kids] == s).sum() for s in seeds]
-        assert max(per_seed) <= 5 and sum(per_seed) == len(seeds) * 5 - dropped  # five from each seed, less those dropped
+        # Five from each seed, less those dropped.
+        assert max(per_seed) <= 5 and sum(per_seed) == len(seeds) * 5 - dropped
         assert np.array_equal(depth[kids], depth[parent[kids]] + 1) and not f["is_seed"][()][kids].any()
         moved = np.linalg.norm(tcp[kids, :3] - tcp[parent[kids], :3], axis=1)
         lineage = np.arange(n - 4 * 6, n)  # the side phase's children: 4 mm actions
@@ -368,16 +383,20 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
 
 
 @pytest.mark.slow
-def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_labelled_a_step_per_turn(pipeline, tmp_path, monkeypatch):
+def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_labelled_a_step_per_turn(pipeline, tmp_path,
+                                                                                                    monkeypatch):
     """Turn lineages start at the hover and face seeds near the opening, each turning farther about its own axis at
-    every step (more than the upright phases ever turn the part), labelled their first seed's label plus the step; none in the opening; a finished tree gains them, and an interrupted phase resumes."""
-    from drem_maniskill.pipeline.sampling import _rotation_vectors, turn_axes, turn_origins
+    every step (more than the upright phases ever turn the part), labelled their first seed's label plus the step; none
+    in the opening; a finished tree gains them, and an interrupted phase resumes."""
+    from drem_maniskill.pipeline.tree.phases.base import rotation_vectors
+    from drem_maniskill.pipeline.tree.phases.turn import turn_axes, turn_origins
 
     base = dict(face_depth=2, face_lineages=2, face_children=6)
     grown = tmp_path / "tree.h5"
     n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
-    with pytest.raises(ValueError, match="--face-depth"):
-        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", turn_depth=2), progress=False)
+    with pytest.raises(ValueError, match="face.depth"):
+        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", turn_depth=2),
+                        progress=False)
     config = SamplerConfig.preset("tiny", **base, turn_depth=3, turn_children=6)
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == "turn_2")
@@ -390,19 +409,21 @@ def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_label
         # every face lineage's second seed.
         out = [g for g in hover if not in_opening(f["tip_in_socket"][[int(f[f"seeds/{g}/node"][0])]])[0]]
         assert [g for g, _, _ in origins] == out + ["face_2", "face_2"] and out[0] == hover[0]
-        lineages = len(origins) * config.turn_lineages
+        lineages = len(origins) * config.phases["turn"].lineages
         dropped = [int(f[f"seeds/turn_{k}"].attrs["dropped_in_opening"]) for k in range(1, 4)]
         assert int(f.attrs["turn_completed"]) == 3 and len(f["depth"]) == n + 3 * lineages * 6 - sum(dropped)
         assert not in_opening(f["tip_in_socket"][n:]).any()
         depth, tcp = f["depth"][()], f["tcp_pose"][()].astype(np.float64)
-        first = np.repeat([int(f[f"seeds/{g}/node"][i]) for g, i, _ in origins], config.turn_lineages)
-        labels = np.repeat([label for _, _, label in origins], config.turn_lineages)
-        assert sorted(set(labels)) == sorted({entry, entry + 2} | {int(g[6:]) for g in out})  # face_2's seeds: entry + 2
-        axes, along = turn_axes(config, len(origins)), []
+        first = np.repeat([int(f[f"seeds/{g}/node"][i]) for g, i, _ in origins], config.phases["turn"].lineages)
+        labels = np.repeat([label for _, _, label in origins], config.phases["turn"].lineages)
+        # face_2's seeds are labelled entry + 2.
+        assert sorted(set(labels)) == sorted({entry, entry + 2} | {int(g[6:]) for g in out})
+        axes, along = turn_axes(config.phases["turn"], len(origins)), []
         for k in range(1, 4):
             seeds = f[f"seeds/turn_{k}/node"][()]
-            assert np.array_equal(depth[seeds], labels + k) and np.array_equal(f[f"seeds/turn_{k}"].attrs["label"], labels + k)
-            along.append(np.einsum("lx,lx->l", _rotation_vectors(tcp[seeds, 3:7], tcp[first, 3:7]), axes))
+            assert np.array_equal(depth[seeds], labels + k)
+            assert np.array_equal(f[f"seeds/turn_{k}"].attrs["label"], labels + k)
+            along.append(np.einsum("lx,lx->l", rotation_vectors(tcp[seeds, 3:7], tcp[first, 3:7]), axes))
         along = np.array(along)
         # Each lineage turns farther along its own axis at every step (the controller turns up to 0.05 rad a step; the
         # best of 6 random children about half that), more than a whole step in three.
@@ -410,7 +431,8 @@ def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_label
         # More than the upright phases ever turn the part: the face seeds they start from.
         face = f["seeds/face_2/node"][()]
         entry_node = int(f[f"seeds/depth_{entry}/node"][0])
-        assert np.linalg.norm(_rotation_vectors(tcp[face, 3:7], tcp[[entry_node] * len(face), 3:7]), axis=1).max() < along[-1].min()
+        face_turns = rotation_vectors(tcp[face, 3:7], tcp[[entry_node] * len(face), 3:7])
+        assert np.linalg.norm(face_turns, axis=1).max() < along[-1].min()
 
 
 @pytest.mark.slow
@@ -429,7 +451,8 @@ def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_i
     assert calls == ["goal_press"]
     with h5py.File(grown, "r") as f:
         assert int(f.attrs["goal_press_completed"]) == 1 and len(f["depth"]) == n + 8
-        depth, parent, tcp, tip, ft = f["depth"][()], f["parent"][()], f["tcp_pose"][()], f["tip_in_socket"][()], f["ft"][()]
+        depth, parent, tcp = f["depth"][()], f["parent"][()], f["tcp_pose"][()]
+        tip, ft = f["tip_in_socket"][()], f["ft"][()]
         kids = np.arange(n, n + 8)
         assert np.all(depth[kids] == 1) and np.all(parent[kids] == 0) and not f["is_seed"][()][kids].any()
         own = np.nonzero((depth[:n] == 1) & (parent[:n] == 0))[0]  # the backward phase's children of the goal
@@ -445,19 +468,22 @@ def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_i
 
 
 def test_a_partial_tree_resumes_with_more_workers_or_a_new_phase_but_not_with_other_children():
-    """Resuming keeps what was sampled: another worker count or a larger max_depth, or a finished tree gaining a phase it
-    lacked, continue it; another M or a phase changed once begun start over."""
-    from dataclasses import asdict
-
-    from drem_maniskill.pipeline.sampling import _resumable
+    """Resuming keeps what was sampled: another worker count or a larger max_depth, or a finished tree gaining a phase
+    it lacked, continue it; another M or a phase changed once begun start over. Older headers hold the flat form."""
+    from drem_maniskill.pipeline.tree.backward import resumable
 
     def header(**kw):
-        return dict(config=asdict(SamplerConfig(face_depth=8, **kw)), env_id="USBInsertion-v1")
+        config = SamplerConfig.preset("paper", **{"face_depth": 8, **kw})
+        return dict(config=config.to_dict(), env_id="USBInsertion-v1")
 
     saved = header()
-    assert _resumable(saved, header(workers=2)) and _resumable(saved, header(max_depth=120))
-    assert _resumable(saved, header(turn_depth=24, turn_children=16)) and _resumable(saved, header(side_depth=8))
-    assert not _resumable(saved, header(num_children=400))
+    assert resumable(saved, header(workers=2)) and resumable(saved, header(max_depth=120))
+    assert resumable(saved, header(turn_depth=24, turn_children=16)) and resumable(saved, header(side_depth=8))
+    assert not resumable(saved, header(num_children=400))
     begun = header(turn_depth=24, turn_children=16)
-    assert _resumable(begun, header(turn_depth=24, turn_children=16, workers=2))
-    assert not _resumable(begun, header(turn_depth=24, turn_children=24))  # a phase once begun resumes only as it was
+    assert resumable(begun, header(turn_depth=24, turn_children=16, workers=2))
+    assert not resumable(begun, header(turn_depth=24, turn_children=24))  # a phase once begun resumes only as it was
+    flat = dict(config=dict(num_children=500, face_depth=8, face_children=60, turn_depth=0), env_id="USBInsertion-v1")
+    assert resumable(flat, header()) and resumable(flat, header(side_depth=8))
+    assert not resumable(flat, header(face_depth=4))
+    assert not resumable(dict(flat, env_id="PegInHole-v1"), header())

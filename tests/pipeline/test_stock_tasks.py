@@ -20,7 +20,7 @@ def stock_pipeline(tmp_path_factory):
     from drem_maniskill.drem.model import ModelConfig
     from drem_maniskill.experts.recording import record_expert
     from drem_maniskill.pipeline.dataset import dataset_modalities
-    from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
+    from drem_maniskill.pipeline import SamplerConfig, backward_sample
     from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
 
     root = tmp_path_factory.mktemp("stock")

@@ -1,0 +1,194 @@
+"""Backward sampling into a task progress tree (Section III-A of the paper), then the extra phases turned on.
+
+Starting from the goal state ``s_G`` (the expert trajectory's last state), at depth ``d`` every seed state gets ``M``
+random actions, each applied from the restored seed state; the children are recorded with depth ``d + 1`` and their
+parent. The next seeds are chosen by the progress measure: the paper's expert-guided measure (``N = 1``) keeps the
+child whose end-effector pose is closest to the expert's pose ``d + 1`` steps before the goal, and ``N > 1`` keeps
+the ``N`` closest. Sampling stops once at least ``N * delta`` seeds lie in the task's start region, or fails with a
+clear error at ``max_depth``.
+
+Any ManiSkill env works (``drem_maniskill.envs.adapter``): on our tasks the tree holds both cameras and the F/T
+history; on a stock task its cameras and zeros for F/T. Where the robot has a gripper, the measure also compares the
+gripper opening with the expert's, so the tree opens the gripper where the expert had it open.
+
+The tree is written to ``<out>.partial`` step by step (``tree_file``) and renamed when complete; an interrupted run
+resumes from the last complete step.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict
+from functools import partial as bind
+from pathlib import Path
+from typing import Optional
+
+import h5py
+import numpy as np
+
+from drem_maniskill.pipeline.tree import tree_file
+from drem_maniskill.pipeline.tree.child_sampler import ChildPool, ChildSampler
+from drem_maniskill.pipeline.tree.config import SamplerConfig
+from drem_maniskill.pipeline.tree.expert import ExpertTrajectory, load_expert
+from drem_maniskill.pipeline.tree.phases import PHASES, PhaseContext, stream_of
+from drem_maniskill.utils.progress import progress_bar
+from drem_maniskill.utils.state import broadcast_state, state_at
+
+
+class NoStartRegionError(RuntimeError):
+    """The tree reached ``max_depth`` before enough seeds were in the start region."""
+
+
+def pose_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_weight: float = 0.0) -> np.ndarray:
+    """Distance between end-effector states ``[.., 7]`` or ``[.., 8]`` (pose, gripper width): position L2 plus the
+    weighted rotation angle, plus the weighted gripper-width difference when both carry one."""
+    pos = np.linalg.norm(a[..., :3] - b[..., :3], axis=-1)
+    dot = np.abs(np.sum(a[..., 3:7] * b[..., 3:7], axis=-1)).clip(0, 1)
+    dist = pos + rotation_weight * 2 * np.arccos(dot)
+    if gripper_weight and a.shape[-1] > 7 and b.shape[-1] > 7:
+        dist = dist + gripper_weight * np.abs(a[..., 7] - b[..., 7])
+    return dist
+
+
+def action_scale_at(depth: int, expert_ee: np.ndarray, config: SamplerConfig, translation_limit: float) -> float:
+    """The arm action range for the children of depth ``depth`` (``SamplerConfig.expert_step_scale``)."""
+    if config.expert_step_scale <= 0:
+        return config.action_scale
+    goal = len(expert_ee) - 1
+    a, b = max(goal - depth, 0), max(goal - depth - 1, 0)
+    step = float(np.linalg.norm(expert_ee[a, :3] - expert_ee[b, :3]))
+    return float(np.clip(config.expert_step_scale * step / translation_limit, config.min_action_scale,
+                         config.action_scale))
+
+
+def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_ee: np.ndarray, depth: int,
+                  seeds: list, seed_nodes: list, progress: bool = True) -> int:
+    """The paper's loop, from the seeds at ``depth`` until enough seeds are in the start region; returns that depth."""
+    goal = len(expert_ee) - 1
+    needed = math.ceil(config.num_seeds * config.delta)
+    gripper_weight = config.gripper_weight if pool.sampler.adapter.gripper_idx else 0.0
+    bar = progress_bar(total=config.max_depth, initial=depth, desc="backward sampling", unit="depth", enabled=progress)
+    while (in_region := int(sum(bool(s["in_start_region"]) for s in seeds))) < needed:
+        if depth >= config.max_depth:
+            raise NoStartRegionError(
+                f"backward sampling reached max_depth={config.max_depth} with {in_region}/{len(seeds)} seeds in the "
+                f"start region (needed {needed}); raise --max-depth or --action-scale, or check the expert")
+        scale = action_scale_at(depth, expert_ee, config, pool.sampler.translation_limit)
+        merged = pool.children_of(seeds, seed_nodes, depth, config.num_children, scale)
+        bar.set_postfix(children=config.num_children * len(seeds), in_start=in_region)
+        # Expert-guided progress measure: the closest end-effector states to the expert's d + 1 steps back.
+        dist = pose_distance(merged["ee"], expert_ee[max(goal - (depth + 1), 0)], config.rotation_weight,
+                             gripper_weight)
+        chosen = np.argsort(dist, kind="stable")[: config.num_seeds]
+        depth += 1
+        seed_nodes = tree_file.append_depth(partial, merged, depth, chosen)
+        seeds = tree_file.seeds_at(merged, chosen)
+        bar.update(1)
+    bar.close()
+    return depth
+
+
+def backward_sample(expert_path: str, out_path: str, config: Optional[SamplerConfig] = None,
+                    progress: bool = True) -> str:
+    """Build the task progress tree from an expert trajectory (the paper's loop, then the phases turned on); returns
+    the tree's path."""
+    config = config or SamplerConfig()
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    partial = tree_file.partial_path(out_path)
+    expert = load_expert(expert_path, config.episode)
+    sampler = ChildSampler(expert.env_id, expert.env_kwargs, expert.episode_seed, start_radius=config.start_radius)
+    pool = ChildPool(sampler, config.seed, config.workers, config.randomize_colors, config.randomize_placement)
+    try:
+        _check(expert_path, expert, sampler, config)
+        # The measure compares with the expert's end-effector states, read from its env states (not its
+        # observations), so any demo with env_states works.
+        expert_ee = sampler.expert_ee_states(expert.states)
+        sampler.expert_first_ee = expert_ee[0]
+        pool.start_workers(expert.env_id, expert.env_kwargs, expert.episode_seed, expert_ee[0], config.start_radius)
+        depth, seeds, nodes = _open_or_resume(partial, expert, expert_ee, config, sampler)
+        if tree_file.start_depth(partial) is None:
+            depth = backward_loop(partial, pool, config, expert_ee, depth, seeds, nodes, progress)
+        context = PhaseContext(
+            partial, pool, config, tree_file.mark_start_depth(partial, depth),
+            bind(action_scale_at, expert_ee=expert_ee, config=config, translation_limit=sampler.translation_limit),
+            sampler.adapter.socket_geometry(), progress)
+        for name, settings in config.phases_on().items():
+            PHASES[name].sample(context.for_phase(name, stream_of(name)), settings)
+        return tree_file.finish(partial, out_path)
+    finally:
+        pool.close()
+
+
+def _check(expert_path: str, expert: ExpertTrajectory, sampler: ChildSampler, config: SamplerConfig) -> None:
+    """Refuse, before sampling anything, an expert whose cameras differ or phases that cannot run on this env."""
+    missing = [m for m, uid in sampler.adapter.camera_map.items() if expert.camera_map.get(m) != uid]
+    if missing:
+        raise ValueError(
+            f"{expert_path} recorded cameras {expert.camera_map}, but {expert.env_id} samples "
+            f"{sampler.adapter.camera_map}; record the expert with the same env and sensor configs")
+    on = config.phases_on()
+    for name, phase in ((n, PHASES[n]) for n in on):
+        for required in phase.requires:
+            if required not in on:
+                raise ValueError(f"the {name} phase starts from the {required} phase's seeds: turn that on too "
+                                 f"({PHASES[required].switch()})")
+        if phase.needs_geometry and sampler.adapter.socket_geometry() is None:
+            raise ValueError(f"the {name} phase needs one of our insertion tasks, which know where the socket's "
+                             f"opening is; {expert.env_id} does not: sample it with the phase off ({phase.switch()})")
+
+
+def resumable(saved: dict, now: dict) -> bool:
+    """Whether a partial tree with header ``saved`` goes on under header ``now``: the same env and expert, and a
+    config that ``SamplerConfig.can_resume`` it (older headers hold the flat config form)."""
+    try:
+        old = SamplerConfig.from_dict(saved.get("config", {}))
+    except (ValueError, TypeError):
+        return False
+    rest = [{k: v for k, v in h.items() if k not in ("config", "socket_geometry")} for h in (saved, now)]
+    return SamplerConfig.from_dict(now["config"]).can_resume(old) and rest[0] == rest[1]
+
+
+def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarray, config: SamplerConfig,
+                    sampler: ChildSampler) -> tuple:
+    """The depth, seeds and seed nodes to go on from: a resumable partial file's last complete depth, else a new file
+    holding the goal state (depth 0)."""
+    geometry = sampler.adapter.socket_geometry()
+    header = dict(config=config.to_dict(), env_id=expert.env_id, env_kwargs=expert.env_kwargs,
+                  episode_seed=expert.episode_seed, expert_length=expert.length - 1,
+                  camera_map=sampler.adapter.camera_map, has_ft=sampler.adapter.has_ft, action_dim=sampler.action_dim,
+                  socket_geometry=None if geometry is None else asdict(geometry))
+    header = json.loads(json.dumps(header))  # as it reads back
+    if partial.exists():
+        resumed = None
+        try:
+            with h5py.File(partial, "r") as f:
+                if resumable(tree_file.read_header(f), header):
+                    depth = int(f.attrs["completed_depth"])
+                    resumed = (depth, *tree_file.read_seeds(f[f"seeds/depth_{depth}"]))
+        except (OSError, KeyError):
+            pass  # unreadable: start over
+        if resumed is not None:
+            # After closing: HDF5 will not open a file for writing that this process holds open for reading.
+            tree_file.truncate(partial)
+            tree_file.set_header(partial, header)
+            return resumed
+        partial.unlink()  # from another config: start over
+    root, flat, in_region = _goal_node(expert, expert_ee, sampler)
+    tree_file.create(partial, header, expert.first_obs, expert.last_obs, expert_ee, root)
+    return 0, [dict(state=flat[0], in_start_region=in_region)], [0]
+
+
+def _goal_node(expert: ExpertTrajectory, expert_ee: np.ndarray, sampler: ChildSampler) -> tuple:
+    """The root node's rows (the goal state, as the expert's last step recorded it), its flat state and start flag."""
+    sampler.adapter.set_state(broadcast_state(state_at(expert.states, expert.length - 1), sampler.n))
+    flat = sampler.adapter.flatten(sampler.adapter.get_state())[:1].cpu().numpy()
+    in_region = bool(sampler.in_start_region()[0])
+    root = {f"{m}_rgb": expert.last_obs[f"{m}_rgb"][None] for m in expert.camera_map}
+    extras = dict(colors=sampler.adapter.colors(), placement=sampler.adapter.placements(),
+                  tip_in_socket=sampler.adapter.tip_in_socket())  # colours: the expert episode's, from its seed
+    root.update({k: v[:1].cpu().numpy() for k, v in extras.items() if v is not None})
+    root.update(ft=expert.last_obs.get("ft", np.zeros((8, 6), np.float32))[None], tcp_pose=expert_ee[-1:, :7],
+                in_start_region=np.array([in_region]), state=flat, parent=np.array([-1]))
+    return root, flat, in_region

@@ -1,0 +1,152 @@
+"""``SamplerConfig``: the paper's backward-sampling settings, and the settings of every extra phase by name.
+
+Two forms, both read by ``SamplerConfig.from_dict``:
+
+* nested (``to_dict``, recipes, tree headers from now on): the core fields flat, and ``phases`` by name,
+  ``{"num_children": 500, "phases": {"face": {"depth": 8, "step": 0.0015}, "goal_presses": {"count": 500}}}``;
+* flat (older tree and checkpoint headers, preset overrides): ``<phase>_<field>`` keys beside the core ones,
+  ``{"face_depth": 8, "face_step": 0.0015, "goal_presses": 500}`` (``Phase.legacy`` names the exceptions).
+
+``phases`` always holds every registered phase; one runs when its size field (``depth``, ``children`` or ``count``,
+``Phase.size``) is above 0, and the defaults have them all at 0: the paper's sampler.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+from drem_maniskill.pipeline.tree.phases import PHASES
+
+PRESETS = {"paper": {}, "quick": dict(num_children=24), "tiny": dict(num_children=4, max_depth=40)}
+# A run that gave up at max_depth resumes with a larger one; one sampled with 1 worker process goes on with 2 (a
+# child's step differs between worker layouts only by the sibling before it in PhysX's contact cache, 0.03-0.11 N).
+RESUMABLE_FIELDS = ("max_depth", "workers")
+
+
+@dataclass
+class SamplerConfig:
+    """Backward-sampling hyper-parameters; defaults are the paper's (M = 500, N = 1), with no extra phase."""
+
+    num_children: int = 500
+    """M: random actions applied to each seed state."""
+    num_seeds: int = 1
+    """N: seeds kept per depth (the paper's expert-guided measure uses 1)."""
+    delta: float = 0.5
+    """Stop when at least ceil(N * delta) seeds are in the start region."""
+    max_depth: int = 80
+    """Fail (resumably) when the start region is not reached by this depth."""
+    action_scale: float = 1.0
+    """Random arm actions are uniform in [-action_scale, action_scale] (normalised); gripper ones always in [-1, 1]."""
+    expert_step_scale: float = 0.0
+    """When > 0, the arm actions at each depth span this many times the expert's own step there, clipped to
+    [min_action_scale, action_scale]: fine where the expert moves slowly, the whole range where it moves fast."""
+    min_action_scale: float = 0.05
+    """The smallest arm action range (``expert_step_scale``, and the lineage phases' steps)."""
+    rotation_weight: float = 0.05
+    """Metres per radian when comparing end-effector poses with the expert's."""
+    seed: int = 0
+    """Seed of every random stream."""
+    episode: int = 0
+    """Which episode of the expert file to use."""
+    workers: int = 1
+    """Worker processes, each with its own env (children of one seed are split among them)."""
+    gripper_weight: float = 1.0
+    """Metres per metre of finger opening when comparing with the expert (robots with a gripper)."""
+    start_radius: float = 0.03
+    """Envs without a start-region predicate: within this distance of the expert's first TCP position."""
+    randomize_colors: bool = True
+    """Each child gets freshly drawn part and socket colours (tasks that have them), as every reset of the task does:
+    the image encoder must not learn one colour pair."""
+    randomize_placement: bool = True
+    """Each child's scene is moved as a whole to a freshly drawn socket placement (our tasks; not in the paper, whose
+    hole stays put): a tree of one placement teaches a reward that reads where the socket is."""
+    phases: dict = field(default_factory=dict)
+    """Settings of every extra phase by name (``phases.PHASES``); a phase runs when its size field is above 0."""
+
+    def __post_init__(self):
+        unknown = [name for name in self.phases if name not in PHASES]
+        if unknown:
+            raise ValueError(f"unknown sampler phase {unknown[0]!r}; valid ones: {list(PHASES)}")
+        settings = {name: _phase_settings(name, self.phases.get(name, {})) for name in PHASES}
+        # A phase that is off has its defaults: its other settings change nothing, so they never tell configs apart.
+        self.phases = {name: s if PHASES[name].is_on(s) else PHASES[name].config() for name, s in settings.items()}
+
+    def phases_on(self) -> dict:
+        """The settings of the phases that run, by name, in the order they run."""
+        return {name: s for name, s in self.phases.items() if PHASES[name].is_on(s)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SamplerConfig":
+        """A config from its nested form, its flat form, or a mix; an unknown key is a ValueError naming it."""
+        core = [f.name for f in fields(cls) if f.name != "phases"]
+        nested = {name: value if isinstance(value, dict) else asdict(value)
+                  for name, value in (d.get("phases") or {}).items()}
+        for key, value in d.items():
+            if key in core or key == "phases":
+                continue
+            name, setting = _flat_owner(key, core)
+            given = nested.setdefault(name, {})
+            if setting in given and _phase_settings(name, {setting: given[setting]}) != _phase_settings(
+                    name, {setting: value}):
+                raise ValueError(f"sampler phase {name!r}: {setting!r} given twice, as {given[setting]!r} (nested) "
+                                 f"and {value!r} ({key!r})")
+            given[setting] = value
+        return cls(**{k: d[k] for k in core if k in d}, phases=nested)
+
+    def to_dict(self) -> dict:
+        """The nested form, JSON-ready: every phase, in the order they run."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "phases"}
+        out["phases"] = {name: _jsonable(asdict(s)) for name, s in self.phases.items()}
+        return out
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "SamplerConfig":
+        """``paper`` (M = 500), ``quick`` (M = 24, for minutes-long runs) or ``tiny``, with ``overrides`` (any key
+        ``from_dict`` reads)."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown sampler preset {name!r}; choose one of {list(PRESETS)}")
+        return cls.from_dict({**PRESETS[name], **overrides})
+
+    def can_resume(self, saved: "SamplerConfig") -> bool:
+        """Whether a partial tree sampled under ``saved`` goes on under this config: the same but for
+        ``RESUMABLE_FIELDS``, or a tree gaining a growable phase; a growable phase once on only as it was."""
+        for name, phase in PHASES.items():
+            if phase.growable and name in saved.phases_on() and saved.phases[name] != self.phases.get(name):
+                return False
+
+        def fixed(c: SamplerConfig) -> tuple:
+            """What must match: the core settings but ``RESUMABLE_FIELDS``, and the phases that cannot grow."""
+            core = {k: v for k, v in c.to_dict().items() if k not in RESUMABLE_FIELDS + ("phases",)}
+            return core, {n: s for n, s in c.phases.items() if not PHASES[n].growable}
+
+        return fixed(saved) == fixed(self)
+
+
+def _phase_settings(name: str, value: Any):
+    """The settings dataclass of phase ``name`` from a dict (or the dataclass itself)."""
+    cls = PHASES[name].config
+    if isinstance(value, cls):
+        return value
+    valid = {f.name: f for f in fields(cls)}
+    unknown = [k for k in value if k not in valid]
+    if unknown:
+        raise ValueError(f"unknown setting {unknown[0]!r} of sampler phase {name!r}; valid ones: {list(valid)}")
+    # Lists (JSON, TOML) become the tuples the settings declare.
+    return cls(**{k: tuple(v) if isinstance(valid[k].default, tuple) else v for k, v in value.items()})
+
+
+def _flat_owner(key: str, core: list) -> tuple:
+    """The phase and setting a flat-form key names, or a ValueError naming it and the valid keys."""
+    for name, phase in PHASES.items():
+        if key in phase.legacy:
+            return name, phase.legacy[key]
+        setting = key[len(name) + 1:] if key.startswith(name + "_") else None
+        if setting in {f.name for f in fields(phase.config)}:
+            return name, setting
+    flat = [phase.flat_key(f.name) for phase in PHASES.values() for f in fields(phase.config)]
+    raise ValueError(f"unknown sampler setting {key!r}; valid ones: {core + ['phases']}, or the flat phase keys {flat}")
+
+
+def _jsonable(d: dict) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
