@@ -31,9 +31,10 @@ import gymnasium as gym
 
 from drem_maniskill.envs import TASKS
 from drem_maniskill.experts import record_expert
+from drem_maniskill.pipeline import backward_sample
 from drem_maniskill.pipeline.examine import examine
-from drem_maniskill.pipeline.sampling import SamplerConfig, backward_sample
-from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
+from drem_maniskill.pipeline.recipe import load_recipe
+from drem_maniskill.pipeline.train_reward import train_reward
 
 
 def image_strip(frames: np.ndarray, count: int = 8) -> np.ndarray:
@@ -80,19 +81,14 @@ def _save_png(img: np.ndarray, path: Path) -> None:
     os.replace(tmp, path)
 
 
-SCALES = {
-    # sampler preset, training preset and iterations, examination seeds
-    "demo": dict(sampler="quick", train="quick", iterations=500, exam_seeds=3),
-    "tiny": dict(sampler="tiny", train="tiny", iterations=4, exam_seeds=1),
-}
-
-
 def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: int = 2, seed: int = 0,
              scale: str = "demo", drem: bool = True) -> dict:
-    """Record expert episodes per task, draw them, and (``drem``) run the DREM chain on them."""
-    if scale not in SCALES:
-        raise ValueError(f"unknown demo scale {scale!r}; choose one of {list(SCALES)}")
-    sc = SCALES[scale]
+    """Record expert episodes per task, draw them, and (``drem``) run the DREM chain on them.
+
+    The chain's settings are each task's recipe (``tasks/<id>/recipe.toml``) at ``scale`` (``demo``: minutes
+    per task; ``tiny``: for tests); the expert episodes are the demo's own, recorded from ``seed``.
+    """
+    recipes = {task: load_recipe(task, scale) for task in tasks} if drem else {}
     root = Path(out)
     summary = {}
     for task in tasks:
@@ -116,13 +112,11 @@ def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: 
         )
         if not drem:
             continue
-        # Children follow the expert's step, as for the shipped checkpoints (docs/drem.md).
-        tree = backward_sample(result.h5_path, str(folder / "tree.h5"),
-                               SamplerConfig.preset(sc["sampler"], seed=seed, expert_step_scale=4.0))
-        config = TrainConfig.preset(sc["train"], iterations=sc["iterations"])
-        checkpoint = train_reward(tree, str(folder / "reward"), config)
-        # Held-out seeds: after the recorded ones.
-        exam_seeds = range(seed + 1000, seed + 1000 + sc["exam_seeds"])
+        recipe = recipes[task]
+        tree = backward_sample(result.h5_path, str(folder / "tree.h5"), recipe.sampler_config(seed=seed))
+        checkpoint = train_reward(tree, str(folder / "reward"), recipe.train_config())
+        # Held-out seeds: clear of the recorded ones.
+        exam_seeds = range(seed + 1000, seed + 1000 + recipe.examine["episodes"])
         quality = examine(task, checkpoint, seeds=exam_seeds, out_dir=str(folder / "examination"))
         summary[task].update(
             tree=tree, checkpoint=checkpoint,

@@ -1,0 +1,193 @@
+"""One command per reward: a task's recipe (``tasks/<id>/recipe.toml``) run from the demo to ``rewards/<id>/``.
+
+``build_reward`` runs the stages in order, each writing one output under the work folder and skipping
+when that output exists (the sampler and the training also resume their own partial files), so an
+interrupted build is finished by running the same command again:
+
+1. demo: the committed demo the recipe names, else ``record-expert`` -> ``expert/expert.h5``;
+2. sample: backward sampling -> ``tree.h5``;
+3. train: the reward -> ``reward/drem.pt``; examine it on held-out seeds -> ``examination/``;
+4. the image-only twin, where the recipe asks for it -> ``reward_image/``, ``examination_image/``;
+5. calibrate: the support guard's thresholds -> ``support.json``;
+6. publish: the products copied under the names ``rewards/<id>/`` uses (``drem.pt``, ``quality.json``, ...).
+"""
+
+from __future__ import annotations
+
+import filecmp
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Optional, Union
+
+from drem_maniskill.drem.checkpoint import REWARDS_DIRS
+from drem_maniskill.pipeline.recipe import FULL, Recipe, RecipeError, load_recipe
+
+DEFAULT_OUT = Path("outputs") / "build_reward"
+# Work-folder file -> its name in the published reward folder (as in rewards/<id>/).
+PUBLISHED = {
+    "reward/drem.pt": "drem.pt",
+    "examination/quality.json": "quality.json",
+    "examination/examination.png": "examination.png",
+    "reward_image/drem.pt": "drem_image.pt",
+    "examination_image/quality.json": "quality_image.json",
+    "examination_image/examination.png": "examination_image.png",
+    "support.json": "support.json",
+}
+_TRAINED = ("reward", "examination", "reward_image", "examination_image", "support.json")
+# Recipe section -> the work-folder outputs made from it (the stages after it read those outputs).
+MADE_FROM = {
+    "demo": ("expert", "tree.h5", "tree.h5.partial", *_TRAINED),
+    "sampler": ("tree.h5", "tree.h5.partial", *_TRAINED),
+    "train": _TRAINED,
+    "image_twin": ("reward_image", "examination_image"),
+    "examine": ("examination", "examination_image"),
+    "calibrate": ("support.json",),
+}
+# Settings of the machine, not of the reward: a build may resume with other values.
+MACHINE_FIELDS = {"sampler": ("workers",), "train": ("threads", "device")}
+
+
+def build_reward(task: str, scale: str = FULL, out: Optional[Union[str, Path]] = None,
+                 recipe: Union[str, Path, dict, None] = None) -> Path:
+    """Make ``task``'s reward from its recipe at ``scale``; returns the published ``drem.pt``.
+
+    The stages work under ``out`` (default ``outputs/build_reward/<task>/<scale>``) and publish there; at
+    the ``full`` scale without ``out`` they publish into the package's ``rewards/<task>/``.
+    ``recipe``: a recipe file, ``"default"`` (the general defaults) or None (``tasks/<task>/recipe.toml``).
+    """
+    r = load_recipe(task, scale, recipe)
+    work = Path(out) if out is not None else DEFAULT_OUT / task / scale
+    dest = REWARDS_DIRS[0] / task if out is None and scale == FULL else work
+    work.mkdir(parents=True, exist_ok=True)
+    check_same_recipe(work / "recipe.json", r)
+    _log(task, f"recipe {r.source}, scale {scale}; working in {work}")
+    expert = demo_stage(r, work)
+    tree = stage(task, "sample", work / "tree.h5", lambda p: _sample(str(expert), str(p), r))
+    checkpoint = model_stages(r, tree, work, "", r.train["model"].get("modalities"))
+    if r.image_twin["enabled"]:
+        model_stages(r, tree, work, "_image", r.image_twin["modalities"])
+    if r.calibrate["enabled"]:
+        stage(task, "calibrate", work / "support.json", lambda p: _calibrate(checkpoint, tree, p, r))
+    publish(task, work, dest)
+    return dest / "drem.pt"
+
+
+def _sample(expert: str, out: str, r: Recipe) -> str:
+    from drem_maniskill.pipeline import backward_sample
+
+    return backward_sample(expert, out, r.sampler_config())
+
+
+def _calibrate(checkpoint: Path, tree: Path, out: Path, r: Recipe) -> None:
+    from drem_maniskill.pipeline.support import calibrate_support
+
+    quantile = r.calibrate.get("quantile")
+    calibrate_support(str(checkpoint), str(tree), str(out), **({"quantile": quantile} if quantile is not None else {}))
+
+
+def demo_stage(r: Recipe, work: Path) -> Path:
+    """The expert demo: the committed one the recipe names, else one recorded with its settings (once)."""
+    committed = r.expert_file()
+    if committed is not None and committed.is_file():
+        check_demo_task(committed, r.task)
+        _log(r.task, f"demo: the committed {committed}")
+        return committed
+    if committed is not None:
+        _log(r.task, f"demo: {committed} is missing; recording one with the recipe's [demo] settings")
+
+    def record(path: Path) -> None:
+        from drem_maniskill.experts import record_expert
+
+        d = r.demo
+        record_expert(r.task, str(path.parent), seeds=range(d["seed"], d["seed"] + d["episodes"]),
+                      name=path.stem, env_kwargs=dict(d["env_kwargs"]), descent_step=d["descent_step"],
+                      descend_from=d["descend_from"])
+
+    return stage(r.task, "demo", work / "expert" / "expert.h5", record)
+
+
+def check_demo_task(h5: Path, task: str) -> None:
+    """Refuse a demo recorded on another task (a recipe copied from another task's folder)."""
+    meta = h5.with_suffix(".json")
+    if not meta.is_file():
+        raise RecipeError(f"{meta} (the metadata beside the demo {h5.name}) not found")
+    env_id = json.loads(meta.read_text()).get("env_info", {}).get("env_id")
+    if env_id != task:
+        raise RecipeError(f"the demo {h5} was recorded on {env_id}, not {task}; "
+                          f"point [demo] expert at a {task} demo, or drop it to record one")
+
+
+def model_stages(r: Recipe, tree: Path, work: Path, suffix: str, modalities) -> Path:
+    """Train a reward on ``tree`` (``modalities``; None: all the tree holds) and examine it; returns its checkpoint."""
+    from drem_maniskill.pipeline.dataset import dataset_modalities
+    from drem_maniskill.pipeline.examine import examine
+    from drem_maniskill.pipeline.train_reward import train_reward
+
+    config = r.train_config(modalities=modalities or dataset_modalities(str(tree)))
+    checkpoint = stage(r.task, f"train{suffix}", work / f"reward{suffix}" / "drem.pt",
+                       lambda p: train_reward(str(tree), str(p.parent), config))
+    stage(r.task, f"examine{suffix}", work / f"examination{suffix}" / "quality.json",
+          lambda p: examine(r.task, str(checkpoint), seeds=r.exam_seeds(), out_dir=str(p.parent)))
+    return checkpoint
+
+
+def stage(task: str, name: str, output: Path, run: Callable[[Path], object]) -> Path:
+    """Run ``run(output)`` unless ``output`` exists; either way return ``output``."""
+    if output.exists():
+        _log(task, f"{name}: skipped, {output} exists")
+        return output
+    _log(task, f"{name}: running -> {output}")
+    start = time.time()
+    output.parent.mkdir(parents=True, exist_ok=True)
+    run(output)
+    if not output.exists():
+        raise RuntimeError(f"stage {name} of {task} finished without writing {output}")
+    _log(task, f"{name}: done in {time.time() - start:.0f} s")
+    return output
+
+
+def publish(task: str, work: Path, dest: Path) -> None:
+    """Copy the products to ``dest`` under their published names (files already there and equal are left)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    for src_name, dest_name in PUBLISHED.items():
+        src, target = work / src_name, dest / dest_name
+        if not src.is_file() or src.resolve() == target.resolve():
+            continue
+        if target.is_file() and filecmp.cmp(src, target, shallow=False):
+            _log(task, f"publish: skipped, {target} is up to date")
+            continue
+        tmp = target.with_name(target.name + ".tmp")
+        shutil.copyfile(src, tmp)
+        tmp.replace(target)
+        _log(task, f"publish: {target}")
+
+
+def check_same_recipe(path: Path, r: Recipe) -> None:
+    """Record the recipe beside the outputs; refuse to resume outputs made by another recipe."""
+    current = json.loads(json.dumps(r.to_dict()))
+    if path.is_file():
+        before = json.loads(path.read_text())
+        changed = sorted(k for k in set(before) | set(current) if _outcome(before, k) != _outcome(current, k))
+        if changed:
+            stale = sorted({name for section in changed for name in MADE_FROM.get(section, MADE_FROM["demo"])})
+            raise RecipeError(
+                f"{path.parent} holds outputs of another recipe (it differs in {', '.join(changed)}); delete what "
+                f"those settings made ({', '.join(stale)}, and recipe.json) to rebuild them, or build elsewhere (out=)")
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(current, indent=2) + "\n")
+
+
+def _outcome(recipe: dict, section: str):
+    """A recipe section without the settings that change how fast a stage runs, not what it makes."""
+    value = recipe.get(section)
+    if section in MACHINE_FIELDS and isinstance(value, dict):
+        return {k: v for k, v in value.items() if k not in MACHINE_FIELDS[section]}
+    return value
+
+
+def _log(task: str, message: str) -> None:
+    print(f"build-reward {task}: {message}", file=sys.stderr, flush=True)

@@ -1,0 +1,69 @@
+"""``build_reward``: a task's recipe from the demo to a published reward folder, each stage resumable."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from drem_maniskill.drem.checkpoint import load_checkpoint
+from drem_maniskill.pipeline.build_reward import PUBLISHED, build_reward, check_same_recipe, demo_stage
+from drem_maniskill.pipeline.recipe import RecipeError, load_recipe, read_toml, recipe_path
+
+STAGES = ("sample", "train", "examine", "train_image", "examine_image", "calibrate")
+
+
+@pytest.mark.slow
+def test_tiny_build_runs_end_to_end_and_a_second_call_skips_every_stage(tmp_path, capsys):
+    out = tmp_path / "tiny"
+    start = time.time()
+    path = build_reward("PegInHole-v1", scale="tiny", out=out)
+    took = time.time() - start
+    assert path == out / "drem.pt"
+    header, _ = load_checkpoint(str(path))
+    assert header["env_id"] == "PegInHole-v1" and header["train"]["iterations"] == 50
+    assert header["sampler"]["num_children"] == 4 and header["modalities"] == ["fixed", "wrist", "ft"]
+    image, _ = load_checkpoint(str(out / "drem_image.pt"))
+    assert image["modalities"] == ["fixed", "wrist"]
+    assert json.loads((out / "quality.json").read_text())["seeds"] == [0]
+    assert all((out / name).is_file() for name in PUBLISHED.values())
+    first = capsys.readouterr().err
+    assert "demo: the committed" in first and all(f"{s}: running" in first for s in STAGES)
+
+    build_reward("PegInHole-v1", scale="tiny", out=out)
+    again = capsys.readouterr().err
+    assert all(f"{s}: skipped" in again for s in STAGES) and ": running" not in again
+    print(f"tiny build: {took:.0f} s")
+
+
+def test_outputs_of_another_recipe_are_refused(tmp_path):
+    tiny = load_recipe("PegInHole-v1", "tiny")
+    check_same_recipe(tmp_path / "recipe.json", tiny)
+    check_same_recipe(tmp_path / "recipe.json", tiny)  # the same recipe resumes
+    faster = load_recipe("PegInHole-v1", "tiny", recipe={**_raw("PegInHole-v1"), "sampler": {"workers": 2}})
+    with pytest.raises(RecipeError, match="differs in sampler") as err:
+        check_same_recipe(tmp_path / "recipe.json", faster)
+    assert "tree.h5" in str(err.value) and "expert," not in str(err.value)  # the demo is still good
+    examined = load_recipe("PegInHole-v1", "tiny", recipe={**_raw("PegInHole-v1"), "examine": {"first_seed": 5}})
+    with pytest.raises(RecipeError, match=r"differs in examine\); delete what those settings made \(examination, "
+                                          r"examination_image, and recipe.json\)"):
+        check_same_recipe(tmp_path / "recipe.json", examined)
+
+
+def test_a_machine_setting_does_not_block_resuming(tmp_path):
+    raw = _raw("PegInHole-v1")
+    check_same_recipe(tmp_path / "recipe.json", load_recipe("PegInHole-v1", recipe=raw))
+    raw["sampler"] = {**raw["sampler"], "workers": 2}
+    raw["train"] = {**raw["train"], "threads": 2}
+    check_same_recipe(tmp_path / "recipe.json", load_recipe("PegInHole-v1", recipe=raw))
+
+
+def test_a_demo_of_another_task_is_refused(tmp_path):
+    recipe = load_recipe("PegInHole-v1", recipe=recipe_path("USBInsertion-v1"))
+    with pytest.raises(RecipeError, match="recorded on USBInsertion-v1, not PegInHole-v1"):
+        demo_stage(recipe, tmp_path)
+
+
+def _raw(task: str) -> dict:
+    return read_toml(recipe_path(task), task)

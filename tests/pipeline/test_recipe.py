@@ -1,0 +1,146 @@
+"""Recipes as data: every shipped checkpoint's header matches its task's recipe, and a bad recipe fails clearly.
+
+The header-vs-recipe test pins the model card's "how it was made", the recipe file and the checkpoint
+together: a change to one of them (or to a config class's defaults) that the others do not follow fails here.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import asdict
+from pathlib import Path
+
+import pytest
+
+from drem_maniskill.drem.checkpoint import load_checkpoint
+from drem_maniskill.experts.control import ee_control_kwargs
+from drem_maniskill.pipeline.recipe import GENERAL, TASKS_DIR, RecipeError, load_recipe, recipe_path
+from drem_maniskill.pipeline.tree.config import SamplerConfig
+
+ROOT = Path(__file__).resolve().parents[2]
+REWARDS = ROOT / "rewards"
+SHIPPED = sorted(p.name for p in REWARDS.iterdir() if (p / "drem.pt").is_file())
+# Settings of the machine a checkpoint was made on, not of the checkpoint: the USB tree was regrown with two
+# sampler processes, and the thread count and device only change how fast training runs.
+MACHINE = {"workers", "threads", "device"}
+
+
+def _without(d: dict, keys=MACHINE) -> dict:
+    return {k: v for k, v in d.items() if k not in keys}
+
+
+def _shipped_files():
+    for task in SHIPPED:
+        yield task, "drem.pt", "quality.json"
+        if (REWARDS / task / "drem_image.pt").is_file():
+            yield task, "drem_image.pt", "quality_image.json"
+
+
+@pytest.mark.parametrize("task,checkpoint,quality", list(_shipped_files()))
+def test_shipped_checkpoint_header_matches_its_recipe(task, checkpoint, quality):
+    recipe = load_recipe(task)
+    header, _ = load_checkpoint(str(REWARDS / task / checkpoint))
+    # Older headers hold the sampler's flat form; both forms normalise through SamplerConfig.
+    assert _without(SamplerConfig.from_dict(header["sampler"]).to_dict()) == _without(recipe.sampler_config().to_dict())
+    twin = checkpoint == "drem_image.pt"
+    config = recipe.train_config(modalities=recipe.image_twin["modalities"] if twin else None)
+    assert _without(header["train"]) == _without(asdict(config), MACHINE | {"model"})
+    # Checkpoints written before ModelConfig had an init field were all trained from PyTorch's default init.
+    model = {"init": "torch", **header["model"]}
+    assert model == json.loads(json.dumps(config.model.to_dict()))
+    assert header["image_size"] == config.model.image_size and header["modalities"] == list(config.model.modalities)
+    assert json.loads((REWARDS / task / quality).read_text())["seeds"] == list(recipe.exam_seeds())
+    assert header["env_kwargs"] == _demo_env_kwargs(recipe)
+
+
+def _demo_env_kwargs(recipe) -> dict:
+    """The env kwargs the recipe's demo was (committed) or would be (recorded) made with."""
+    expert = recipe.expert_file()
+    if expert is not None:
+        meta = json.loads(expert.with_suffix(".json").read_text())
+        episodes, first = meta["episodes"], recipe.demo["seed"]
+        assert [e["episode_seed"] for e in episodes] == list(range(first, first + len(episodes)))
+        assert len(episodes) == recipe.demo["episodes"] and meta["env_info"]["env_id"] == recipe.task
+        return meta["env_info"]["env_kwargs"]
+    return {"obs_mode": "rgb", "render_mode": None, **ee_control_kwargs(recipe.task, recipe.demo["env_kwargs"])}
+
+
+@pytest.mark.parametrize("task", SHIPPED)
+def test_shipped_files_follow_the_recipe(task):
+    recipe = load_recipe(task)
+    assert (REWARDS / task / "drem_image.pt").is_file() == recipe.image_twin["enabled"]
+    assert (REWARDS / task / "support.json").is_file() == recipe.calibrate["enabled"]
+
+
+@pytest.mark.parametrize("task", sorted(p.parent.name for p in TASKS_DIR.glob("*/recipe.toml")))
+@pytest.mark.parametrize("scale", ["full", "demo", "tiny"])
+def test_every_recipe_loads_at_every_scale(task, scale):
+    recipe = load_recipe(task, scale)
+    assert recipe.sampler_config().num_children > 0 and recipe.train_config().iterations > 0
+    if scale != "full":
+        assert recipe.train_config().iterations <= 500 and recipe.examine["episodes"] <= 3
+
+
+def test_every_shipped_reward_has_a_recipe():
+    assert all(recipe_path(task).is_file() for task in SHIPPED)
+
+
+def test_scales_merge_over_the_recipe():
+    full, tiny = load_recipe("USBInsertion-v1"), load_recipe("USBInsertion-v1", "tiny")
+    assert tiny.sampler["phases"]["face"]["depth"] == 1 and full.sampler["phases"]["face"]["depth"] == 8
+    assert tiny.sampler["expert_step_scale"] == full.sampler["expert_step_scale"] == 4.0  # kept where not overridden
+    assert load_recipe("USBInsertion-v1", "demo").sampler_config().phases_on() == {}  # the demo runs the paper's loop
+
+
+def _write(tmp_path, text: str) -> Path:
+    path = tmp_path / "recipe.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("text,names", [
+    ("[train]\niteratons = 5\n", ["iteratons", "iterations", "[train]"]),
+    ("[sampler]\nface_depth = 8\n", ["face_depth", "num_children", "[sampler]"]),
+    ("[sampler.phases.face]\ndeph = 8\n", ["deph", "depth", "phases"]),
+    ("[sampler.phases.flip]\ndepth = 8\n", ["flip", "goal_presses"]),
+    ("[trian]\niterations = 5\n", ["[trian]", "sampler"]),
+    ("[examine]\nepisodes = \"20\"\n", ["episodes", "integer"]),
+    ("[scales.tiny.train]\nitrations = 4\n", ["[scales.tiny]", "itrations"]),
+    ("[train.model]\nmodalities = \"ft\"\n", ["modalities", "list"]),
+])
+def test_a_bad_key_names_the_file_the_key_and_the_valid_ones(tmp_path, text, names):
+    path = _write(tmp_path, text)
+    with pytest.raises(RecipeError) as err:
+        load_recipe("PegInHole-v1", recipe=path)
+    for name in [str(path), *names]:
+        assert name in str(err.value)
+
+
+def test_a_bad_value_names_the_file_and_the_scale(tmp_path):
+    path = _write(tmp_path, "[scales.tiny.train.model]\nmodalities = [\"depth\"]\n")
+    load_recipe("PegInHole-v1", recipe=path)
+    with pytest.raises(RecipeError, match=re.escape(f"{path} (scale tiny): modalities must be")):
+        load_recipe("PegInHole-v1", "tiny", recipe=path)
+
+
+def test_an_unknown_scale_lists_the_scales(tmp_path):
+    path = _write(tmp_path, "[scales.tiny.train]\niterations = 4\n")
+    with pytest.raises(RecipeError, match=r"no scale 'huge'.*\['full', 'tiny'\]"):
+        load_recipe("PegInHole-v1", "huge", recipe=path)
+
+
+def test_a_task_without_a_recipe_says_how_to_write_one_or_use_the_defaults():
+    with pytest.raises(RecipeError) as err:
+        load_recipe("NoRecipe-v1")
+    message = str(err.value)
+    assert "tasks/NoRecipe-v1/recipe.toml" in message and f"--recipe {GENERAL}" in message
+    general = load_recipe("NoRecipe-v1", "tiny", recipe=GENERAL)
+    assert general.sampler_config().phases_on() == {} and general.expert_file() is None
+    assert load_recipe("NoRecipe-v1", recipe=GENERAL).train_config().iterations == 20_000
+
+
+def test_invalid_toml_names_the_file(tmp_path):
+    path = _write(tmp_path, "[train\n")
+    with pytest.raises(RecipeError, match="not valid TOML"):
+        load_recipe("PegInHole-v1", recipe=path)
