@@ -15,7 +15,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from drem_maniskill.drem.checkpoint import CheckpointError
+
 MODALITIES = ("fixed", "wrist", "ft")
+INITS = ("kaiming", "torch")
+MIN_NORMALISER = 0.01
+"""Smallest ``d(h(s_0), h(s_G))`` a reward may divide by. Trained rewards measure 1.1-2.0; a collapsed encoder, whose
+latents all point the same way, gives about 1e-5, and its reward then swings by thousands on any state."""
+LEAKY_SLOPE = 0.1
 CAMERA_OF = {"fixed": "fixed_camera", "wrist": "wrist_camera"}
 
 
@@ -24,12 +31,23 @@ class ModelConfig:
     """Architecture; defaults are the paper's."""
 
     modalities: tuple = ("fixed", "wrist", "ft")
+    """Inputs: the fixed camera, the wrist camera and the wrist F/T history (``ft``); without ``ft``, image-only."""
     image_size: int = 128
+    """Side of the square images the encoder takes, in pixels (a multiple of 64)."""
     ft_history: int = 8
+    """F/T readings per observation (a multiple of 4)."""
     image_dim: int = 64
+    """Features per camera after its CNN."""
     ft_dim: int = 32
+    """Features of the F/T history after its causal convolutions."""
     latent_dim: int = 128
+    """Size of the latent ``h(s)``."""
     channels: tuple = (16, 32, 32, 64, 64, 128)
+    """Channels of the six stride-2 conv layers of each image encoder."""
+    init: str = "kaiming"
+    """Weight init: ``kaiming`` (He init for LeakyReLU(0.1), zero biases) or ``torch`` (PyTorch's layer defaults).
+    With PyTorch's defaults the image encoders' outputs barely depend on the image, every latent points the same
+    way, ``d(h(s_0), h(s_G))`` starts near 1e-5 and a short training never leaves that point."""
 
     def __post_init__(self):
         self.modalities = tuple(self.modalities)
@@ -37,6 +55,8 @@ class ModelConfig:
         unknown = [m for m in self.modalities if m not in MODALITIES]
         if unknown or not self.modalities:
             raise ValueError(f"modalities must be a non-empty subset of {MODALITIES}, got {self.modalities}")
+        if self.init not in INITS:
+            raise ValueError(f"init must be one of {INITS}, got {self.init!r}")
         if self.image_size % 64:
             raise ValueError(f"image_size must be a multiple of 64 (6 stride-2 layers), got {self.image_size}")
 
@@ -48,6 +68,11 @@ class ModelConfig:
     def to_dict(self) -> dict:
         """JSON-ready dict."""
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelConfig":
+        """The config a checkpoint header or recipe records; one without ``init`` was trained from PyTorch's init."""
+        return cls(**{"init": "torch", **d})
 
 
 class ImageEncoder(nn.Module):
@@ -159,6 +184,8 @@ class DREMModel(nn.Module):
             self.ft_decoder = FTDecoder(config.latent_dim, config.ft_history)
             fused += config.ft_dim
         self.fusion = nn.Sequential(nn.Linear(fused, 256), nn.LeakyReLU(0.1), nn.Linear(256, config.latent_dim))
+        if config.init == "kaiming":
+            kaiming_init(self)
 
     def prepare(self, batch: dict) -> dict:
         """uint8 images ``[B, H, W, 3]`` -> floats ``[B, 3, H, W]`` in [0, 1]; F/T scaled."""
@@ -199,6 +226,32 @@ class DREMModel(nn.Module):
         return h, self.decode(h), inputs
 
 
+def kaiming_init(module: nn.Module, slope: float = LEAKY_SLOPE) -> None:
+    """He-normal weights for LeakyReLU(``slope``) and zero biases on every conv and linear layer of ``module``."""
+    for m in module.modules():
+        if isinstance(m, (nn.Conv1d, nn.Conv2d, nn.ConvTranspose1d, nn.ConvTranspose2d, nn.Linear)):
+            nn.init.kaiming_normal_(m.weight, a=slope, nonlinearity="leaky_relu")
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+
+
 def cosine_distance(h: torch.Tensor, h_goal: torch.Tensor) -> torch.Tensor:
     """``1 - <h_bar, h_bar_G>`` with L2-normalised vectors (the paper's latent distance)."""
     return 1.0 - (F.normalize(h, dim=-1) * F.normalize(h_goal, dim=-1)).sum(-1)
+
+
+class DegenerateRewardError(CheckpointError):
+    """The expert's start and goal embed to nearly the same direction, so ``R(s)`` has no usable normaliser."""
+
+
+def check_normaliser(h_start: torch.Tensor, h_goal: torch.Tensor, source: str = "this model") -> float:
+    """``d(h(s_0), h(s_G))``, or ``DegenerateRewardError`` when it is below ``MIN_NORMALISER`` (or not finite)."""
+    value = float(cosine_distance(h_start.reshape(1, -1).float(), h_goal.reshape(1, -1).float())[0])
+    if not value >= MIN_NORMALISER:  # also catches NaN
+        raise DegenerateRewardError(
+            f"{source} is degenerate: d(h(s_0), h(s_G)) = {value:.3g}, below {MIN_NORMALISER}, so the reward "
+            "1 - d(h, h_G) / d(h_0, h_G) would divide by almost nothing. The encoder maps the expert's first and last "
+            "observations to the same direction: train longer, check that the tree's depths span the task "
+            "(`tree_report`), or keep the default `init='kaiming'`."
+        )
+    return value

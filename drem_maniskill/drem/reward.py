@@ -16,7 +16,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from drem_maniskill.drem.checkpoint import (  # noqa: F401  (default_checkpoint: public here since 0.1)
+# The checkpoint finders are importable beside the reward that reads them (the README's examples do).
+from drem_maniskill.drem.checkpoint import (  # noqa: F401
     CheckpointError,
     check_compatible,
     default_checkpoint,
@@ -24,7 +25,7 @@ from drem_maniskill.drem.checkpoint import (  # noqa: F401  (default_checkpoint:
     resolve_checkpoint,
 )
 from drem_maniskill.drem.fast_encoder import FastEncoder
-from drem_maniskill.drem.model import CAMERA_OF, DREMModel, ModelConfig, cosine_distance
+from drem_maniskill.drem.model import CAMERA_OF, DREMModel, ModelConfig, check_normaliser, cosine_distance
 from drem_maniskill.utils.cameras import camera_images
 
 _VERSION = operator.attrgetter("_version")
@@ -57,14 +58,16 @@ class DREMReward(nn.Module):
     def __init__(self, header: dict, weights: dict):
         super().__init__()
         self.header = header
-        config = ModelConfig(**header["model"])
+        config = ModelConfig.from_dict(header["model"])
         self.model = DREMModel(config)
         state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")}
         missing, unexpected = self.model.load_state_dict(state, strict=False)
         if missing or unexpected:
-            raise CheckpointError(f"checkpoint weights do not match its model config: missing {missing[:5]}, unexpected {unexpected[:5]}")
+            raise CheckpointError(f"checkpoint weights do not match its model config: missing {missing[:5]}, "
+                                  f"unexpected {unexpected[:5]}")
         self.register_buffer("h_goal", weights["h_goal"].float())
         self.register_buffer("h_start", weights["h_start"].float())
+        check_normaliser(self.h_start, self.h_goal, f"The DREM checkpoint for {header.get('env_id')}")
         uids = header.get("camera_uids") or [CAMERA_OF[c] for c in config.cameras]
         # Built once at load: the env step reads them.
         self._camera_pairs = tuple(zip(config.cameras, uids))
@@ -86,7 +89,8 @@ class DREMReward(nn.Module):
         if env is not None:
             missing = [uid for uid in reward.camera_uids if uid not in cams]
             if missing:
-                raise CheckpointError(f"the env has no camera {missing}; the checkpoint {path} needs {reward.camera_uids}")
+                raise CheckpointError(f"the env has no camera {missing}; "
+                                      f"the checkpoint {path} needs {reward.camera_uids}")
             reward = reward.to(env.unwrapped.device)
         return reward
 

@@ -20,10 +20,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
 import torch
 
 from drem_maniskill.drem.checkpoint import save_checkpoint
-from drem_maniskill.drem.model import DREMModel, ModelConfig, cosine_distance
+from drem_maniskill.drem.model import DREMModel, ModelConfig, check_normaliser, cosine_distance
 from drem_maniskill.pipeline.dataset import TreeDataset
 from drem_maniskill.pipeline.losses import reconstruction_loss, triplet_loss
 from drem_maniskill.utils.progress import progress_bar
@@ -35,20 +36,31 @@ class TrainConfig:
     """Training hyper-parameters; defaults are the paper's."""
 
     iterations: int = 20_000
+    """Optimiser steps."""
     lr: float = 2e-4
+    """Adam's learning rate."""
     eps: float = 4.0
+    """Pairs at most this many depths apart are temporal neighbours (the triplet loss's epsilon)."""
     beta1: float = 0.04
+    """Margin of the triplet loss for neighbouring pairs."""
     beta2: float = 0.04
+    """Margin of the triplet loss for non-neighbouring pairs."""
     alpha: float = 0.2
+    """Weight of the reconstruction loss beside the triplet loss."""
     pairs_per_batch: int = 32
     """Pairs per iteration, half temporally neighbouring and half not."""
     seed: int = 0
+    """Seed of the model's init and of the pair sampler."""
     save_every: int = 200
+    """Iterations between the resumable training-state files."""
     log_every: int = 20
+    """Iterations between TensorBoard points."""
     threads: Optional[int] = None
+    """Torch CPU threads (None: torch's default)."""
     device: str = "auto"
     """``auto``: CUDA when available, else the CPU."""
     model: ModelConfig = field(default_factory=ModelConfig)
+    """The encoder-decoder's architecture."""
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "TrainConfig":
@@ -79,19 +91,11 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     model.image_encoders.to(memory_format=torch.channels_last)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     gen = torch.Generator().manual_seed(config.seed)
-    step = 0
     state_path = out / "train_state.pt"
     config_json = json.loads(json.dumps(asdict(config)))
-    if state_path.exists():
-        state = torch.load(state_path, map_location="cpu", weights_only=True)
-        # The same file with other contents (a re-sampled tree) starts over rather than training on a mix.
-        same_data = state["dataset"] == str(Path(dataset_path).resolve()) and state.get("nodes", len(data.depth)) == len(data.depth)
-        if _resumable(json.loads(state["config"])) == _resumable(config_json) and same_data:
-            model.load_state_dict(state["model"])
-            opt.load_state_dict(_unflatten_opt(state["opt"]))
-            gen.set_state(state["gen"])
-            step = int(state["step"])
-    (out / "config.json").write_text(json.dumps(dict(train=config_json, dataset=str(dataset_path), sampler=data.header), indent=2))
+    step = _resume(state_path, model, opt, gen, config_json, dataset_path, len(data.depth))
+    record = dict(train=config_json, dataset=str(dataset_path), sampler=data.header)
+    (out / "config.json").write_text(json.dumps(record, indent=2))
 
     from torch.utils.tensorboard import SummaryWriter
 
@@ -133,6 +137,31 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     return export_reward(model, data, config, out / "drem.pt")
 
 
+def tree_order(model: DREMModel, data: TreeDataset, nodes: int = 512, seed: int = 0) -> float:
+    """Spearman correlation between depth and latent distance to the goal over (up to ``nodes``) tree nodes.
+
+    The training objective in one number: near 1 when the latent orders the tree as the triplet loss asks. A collapsed
+    encoder can reach a small loss with every latent pointing the same way; this stays far from 1 then.
+    """
+    from scipy.stats import spearmanr
+
+    model.eval()
+    device = next(model.parameters()).device
+    count = len(data.depth)
+    idx = torch.randperm(count, generator=torch.Generator().manual_seed(seed))[:nodes]
+    with torch.no_grad():
+        def embed(rows):
+            return model.encode(model.prepare({k: v.to(device) for k, v in data.batch(rows).items()}))
+
+        goal = embed(torch.tensor([data.goal_index]))
+        h = torch.cat([embed(part) for part in idx.split(128)])
+    dist = cosine_distance(h, goal).cpu().numpy()
+    depth = data.depth[idx].numpy()
+    if np.ptp(depth) == 0 or np.ptp(dist) == 0:
+        return 0.0
+    return float(spearmanr(depth, dist).correlation)
+
+
 def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path: Path) -> str:
     """Write the reward checkpoint: weights, ``h(s_0)``, ``h(s_G)`` and the header."""
     model.eval()
@@ -140,6 +169,8 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
         device = next(model.parameters()).device
         h0 = model.encode(model.prepare({k: v.to(device) for k, v in data.expert["first"].items()}))
         hg = model.encode(model.prepare({k: v.to(device) for k, v in data.expert["last"].items()}))
+    # Refused here rather than at use: a degenerate reward pays thousands and a policy run on it learns nothing.
+    normaliser = check_normaliser(h0[0].cpu(), hg[0].cpu(), f"The reward trained into {path.parent}")
     header = dict(
         env_id=data.header["env_id"],
         env_kwargs=data.header.get("env_kwargs", {}),
@@ -151,6 +182,7 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
         model=config.model.to_dict(),
         train={k: v for k, v in asdict(config).items() if k != "model"},
         sampler=data.header.get("config", {}),
+        fit=dict(tree_order=tree_order(model, data), normaliser=normaliser),
         package_version=__version__,
     )
     weights = {f"model.{k}": v.contiguous() for k, v in model.state_dict().items()}
@@ -161,7 +193,23 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
 
 def _resumable(config_json: dict) -> dict:
     """The config keys that must match to resume (more iterations or other logging are fine)."""
-    return {k: v for k, v in config_json.items() if k not in ("iterations", "save_every", "log_every", "threads", "device")}
+    free = ("iterations", "save_every", "log_every", "threads", "device")
+    return {k: v for k, v in config_json.items() if k not in free}
+
+
+def _resume(state_path: Path, model, opt, gen, config_json: dict, dataset_path: str, nodes: int) -> int:
+    """Load the saved training state into ``model``, ``opt`` and ``gen`` when it fits; returns the step to resume at."""
+    if not state_path.exists():
+        return 0
+    state = torch.load(state_path, map_location="cpu", weights_only=True)
+    # The same file with other contents (a re-sampled tree) starts over rather than training on a mix.
+    same_data = state["dataset"] == str(Path(dataset_path).resolve()) and state.get("nodes", nodes) == nodes
+    if _resumable(json.loads(state["config"])) != _resumable(config_json) or not same_data:
+        return 0
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(_unflatten_opt(state["opt"]))
+    gen.set_state(state["gen"])
+    return int(state["step"])
 
 
 def _flatten_opt(state: dict) -> dict:
