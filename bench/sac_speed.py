@@ -7,7 +7,7 @@ ratio: ``train_freq``, ``gradient_steps``). The reward's cost is measured two wa
 * in-step timer: the time inside the env's ``get_reward`` (VICE: inside its wrapper, around the
   inner env step), plus VICE's classifier updates amortised over ``update_every`` steps;
 * step difference: random-action env steps of this env against the same env with
-  ``reward_mode="none"`` (this carries about 0.5 ms of noise per step, see docs/drem.md).
+  ``reward_mode="none"`` (this carries about 0.5 ms of noise per step).
 
 ``x_env`` is the run's wall time over the plain env's own stepping (``gym.make(task, obs_mode="rgb",
 reward_mode="none")``, random actions, measured in the same run): the targets are 2x for the

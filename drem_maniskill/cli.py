@@ -171,12 +171,12 @@ def _add_record_expert(sub) -> None:
     p.add_argument("--descent-step", type=float,
                    help="our tasks: metres per step the expert descends once 6 mm inside the hole (default 0.005), "
                         "and in its first 6 mm where smaller than the entry's 0.002; "
-                        "smaller gives the progress tree more depths inside it (docs/drem.md)")
+                        "smaller gives the progress tree more depths inside it (docs/experiment-log.md)")
     p.add_argument("--descend-from", type=float,
                    help="our tasks: metres above the socket's top face the aligned expert starts its slow descent "
                         "(default: wherever it aligned, often 2 cm up); above it, it approaches the pre-insertion "
                         "point 6 mm above the opening at its approach speed, so fewer of the demo's steps hover "
-                        "(docs/drem.md)")
+                        "(docs/experiment-log.md)")
     p.set_defaults(func=_cmd_record_expert)
 
 

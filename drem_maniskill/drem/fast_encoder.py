@@ -89,12 +89,14 @@ class FastEncoder:
                 eye = eye.view(n_in, side, side, cin).permute(0, 3, 1, 2)
                 mats = [F.conv2d(eye, cv[i].weight, None, 2, 1).permute(0, 2, 3, 1).reshape(n_in, -1) for cv in convs]
                 bias = [cv[i].bias.repeat(half * half) for cv in convs]
-                layers.append(("dense", side, cin, cout, torch.stack(mats).contiguous(), torch.stack(bias)[:, None, :].contiguous()))
+                kind = "dense"
             else:
                 # Rows in the order of an input window: (kernel row, kernel column, input channel).
                 mats = [cv[i].weight.permute(2, 3, 1, 0).reshape(16 * cin, cout) for cv in convs]
                 bias = [cv[i].bias for cv in convs]
-                layers.append(("im2col", side, cin, cout, torch.stack(mats).contiguous(), torch.stack(bias)[:, None, :].contiguous()))
+                kind = "im2col"
+            weight, bias = torch.stack(mats).contiguous(), torch.stack(bias)[:, None, :].contiguous()
+            layers.append((kind, side, cin, cout, weight, bias))
             side = half
         return layers
 
@@ -105,21 +107,23 @@ class FastEncoder:
             raise ValueError("FastEncoder expects at least two kernel-2 causal F/T convs")
         T = model.config.ft_history
         # A kernel-2 causal conv with dilation d: out[t] = w[..., 0] x[t - d] + w[..., 1] x[t] + b.
-        need = [[T - 1]]  # need[l]: the times of layer l's input that the newest output reads
+        need = [[T - 1]]  # need[li]: the times of layer li's input that the newest output reads
         for cv in reversed(convs):
             d = cv.dilation[0]
             need.insert(0, sorted({u for t in need[0] for u in (t - d, t) if u >= 0}))
         need[0] = list(range(T))  # the raw history is read whole (unread steps get zero rows)
         layers = []
-        for l, cv in enumerate(convs[:-1]):
-            src, dst, d = need[l], need[l + 1], cv.dilation[0]
+        for li, cv in enumerate(convs[:-1]):
+            src, dst, d = need[li], need[li + 1], cv.dilation[0]
             w = cv.weight.new_zeros(len(src) * cv.in_channels, len(dst) * cv.out_channels)
             for j, t in enumerate(dst):
                 for k, u in ((0, t - d), (1, t)):
                     if u >= 0:
                         i = src.index(u)
-                        w[i * cv.in_channels : (i + 1) * cv.in_channels, j * cv.out_channels : (j + 1) * cv.out_channels] = cv.weight[:, :, k].t()
-            if l == 0:
+                        rows = slice(i * cv.in_channels, (i + 1) * cv.in_channels)
+                        cols = slice(j * cv.out_channels, (j + 1) * cv.out_channels)
+                        w[rows, cols] = cv.weight[:, :, k].t()
+            if li == 0:
                 w = w / float(model.ft_scale)  # the input scaling folded in
             layers.append((w.contiguous(), cv.bias.repeat(len(dst)).contiguous()))
         # The last conv at T - 1 reads its input at need[-2]: t - d (when not padding) and t.
@@ -133,7 +137,8 @@ class FastEncoder:
             if isinstance(v, torch.Tensor):
                 setattr(self, k, v.to(device))
             elif k in ("layers", "ft_layers"):
-                setattr(self, k, [tuple(x.to(device) if isinstance(x, torch.Tensor) else x for x in item) for item in v])
+                moved = [tuple(x.to(device) if isinstance(x, torch.Tensor) else x for x in item) for item in v]
+                setattr(self, k, moved)
         return self
 
     # --- inference ---
@@ -141,7 +146,9 @@ class FastEncoder:
     @staticmethod
     def _rgba_view(x: torch.Tensor) -> torch.Tensor:
         """``x`` ``[B, H, W, 3]`` itself, or the contiguous ``[B, H, W, 4]`` block it is a view of."""
-        if x.is_contiguous() or x.stride()[1:] != (x.shape[2] * 4, 4, 1) or x.shape[0] > 1 and x.stride(0) != x.shape[1] * x.shape[2] * 4:
+        if x.is_contiguous() or x.stride()[1:] != (x.shape[2] * 4, 4, 1):
+            return x
+        if x.shape[0] > 1 and x.stride(0) != x.shape[1] * x.shape[2] * 4:
             return x
         if x.storage_offset() + x.numel() // 3 * 4 > x.untyped_storage().nbytes():
             return x
@@ -163,28 +170,31 @@ class FastEncoder:
             # int16 holds the sums of 2 x 2 uint8 pixels exactly, in half a float's bytes.
             buf["images"] = torch.empty(shape, dtype=torch.int16, device=device)
             buf["rows"] = torch.empty(K, B, S, W, C, dtype=torch.int16, device=device)
-            for l, (kind, side, cin, cout, w, b) in enumerate(self.layers):
+            for li, (kind, side, cin, cout, w, b) in enumerate(self.layers):
                 h = side // 2
                 if kind == "im2col":
-                    buf[l] = (torch.zeros(K, B, side + 2, side + 2, cin, **new), torch.empty(K, B * h * h, 16 * cin, **new),
-                              torch.empty(K, B * h * h, cout, **new))
+                    buf[li] = (
+                        torch.zeros(K, B, side + 2, side + 2, cin, **new),
+                        torch.empty(K, B * h * h, 16 * cin, **new),
+                        torch.empty(K, B * h * h, cout, **new),
+                    )
                 else:
-                    buf[l] = (torch.empty(K, B, side * side * cin, **new), None, torch.empty(K, B, w.shape[-1], **new))
-        for l, (w, b) in enumerate(self.ft_layers):
-            buf[f"ft{l}"] = torch.empty(B, w.shape[1], **new)
+                    buf[li] = (torch.empty(K, B, side * side * cin, **new), None, torch.empty(K, B, w.shape[-1], **new))
+        for li, (w, b) in enumerate(self.ft_layers):
+            buf[f"ft{li}"] = torch.empty(B, w.shape[1], **new)
         cache[key] = buf
         return buf
 
-    def _layer_input(self, buf: dict, l: int, K: int, B: int) -> torch.Tensor:
-        """Where layer ``l``'s input lives, as ``[K, B, side, side, C]`` (after the last layer: ``z``)."""
-        if l == len(self.layers):
-            side = self.size // 2 ** l
+    def _layer_input(self, buf: dict, li: int, K: int, B: int) -> torch.Tensor:
+        """Where layer ``li``'s input lives, as ``[K, B, side, side, C]`` (after the last layer: ``z``)."""
+        if li == len(self.layers):
+            side = self.size // 2**li
             c = self.layers[-1][3]
             return buf["z"][:, : self.image_features].view(B, K, side, side, c).transpose(0, 1)
-        kind, side, cin = self.layers[l][:3]
+        kind, side, cin = self.layers[li][:3]
         if kind == "im2col":
-            return buf[l][0][:, :, 1:-1, 1:-1]
-        return buf[l][0].view(K, B, side, side, cin)
+            return buf[li][0][:, :, 1:-1, 1:-1]
+        return buf[li][0].view(K, B, side, side, cin)
 
     def _images_into(self, sources: list, buf: dict, f: int) -> None:
         """Pool the camera images to the model's size, in [0, 1], into the first layer's input."""
@@ -228,16 +238,17 @@ class FastEncoder:
             K = len(imgs)
             buf = self._buffers((K, B, h, w, sources[0].shape[-1]), first.device)
             self._images_into(sources, buf, h // self.size)
-            for l, (kind, side, cin, cout, wt, bias) in enumerate(self.layers):
-                inp, cols, out = buf[l]
+            for li, (kind, side, cin, cout, wt, bias) in enumerate(self.layers):
+                inp, cols, out = buf[li]
                 half = side // 2
                 if kind == "im2col":
                     s = inp.stride()
-                    windows = inp.as_strided((K, B, half, half, 4, 4, cin), (s[0], s[1], 2 * s[2], 2 * s[3], s[2], s[3], 1), inp.storage_offset())
+                    window_stride = (s[0], s[1], 2 * s[2], 2 * s[3], s[2], s[3], 1)
+                    windows = inp.as_strided((K, B, half, half, 4, 4, cin), window_stride, inp.storage_offset())
                     cols.view(K, B, half, half, 4, 4, cin).copy_(windows)
                     inp = cols
                 torch.baddbmm(bias, inp, wt, out=out)
-                _leaky_relu_out(out.view(K, B, half, half, cout), self.slope, out=self._layer_input(buf, l + 1, K, B))
+                _leaky_relu_out(out.view(K, B, half, half, cout), self.slope, out=self._layer_input(buf, li + 1, K, B))
         else:
             buf = self._buffers((0, B, 0, 0, 0), batch["ft"].device)
         z = buf["z"]
@@ -245,9 +256,9 @@ class FastEncoder:
             x = batch["ft"]
             x = x.reshape(B, -1) if x.dtype == z.dtype else x.to(z.dtype).reshape(B, -1)
             last = len(self.ft_layers) - 1
-            for l, (wt, bias) in enumerate(self.ft_layers):
-                y = torch.addmm(bias, x, wt, out=buf[f"ft{l}"])
-                if l == last:
+            for li, (wt, bias) in enumerate(self.ft_layers):
+                y = torch.addmm(bias, x, wt, out=buf[f"ft{li}"])
+                if li == last:
                     _leaky_relu_out(y, self.slope, out=z[:, self.image_features :])
                 else:
                     x = F.leaky_relu_(y, self.slope)

@@ -27,7 +27,10 @@ GUARD_QUANTILE = 0.999
 
 @torch.no_grad()
 def image_errors(model: DREMModel, batch: dict) -> dict:
-    """Per camera, the mean squared error of the decoded image against the input ``[B]`` (raw inputs, as the reward's, F/T too)."""
+    """Per camera, the mean squared error ``[B]`` of the decoded image against the input.
+
+    ``batch`` holds raw inputs, as the reward takes them, F/T too.
+    """
     inputs = model.prepare(batch)
     recon = model.decode(model.encode(inputs))
     return {c: (torch.sigmoid(recon[c]) - inputs[c]).pow(2).mean(dim=(1, 2, 3)) for c in model.config.cameras}

@@ -22,11 +22,14 @@ from drem_maniskill.drem.reward import DREMReward, apply_form, check_form
 
 
 class UnsupportedModeError(NotImplementedError, ValueError):
-    """An unknown mode (reward, obs or control): ManiSkill's ``NotImplementedError`` with a message that names the fix."""
+    """An unknown mode (reward, obs or control).
+
+    ManiSkill's ``NotImplementedError``, with a message that names the fix.
+    """
 
 
 class DREMRewardMode:
-    """Mixin for a ManiSkill ``BaseEnv`` subclass: the ``drem`` reward mode, the ``drem_checkpoint`` and ``drem_form`` kwargs.
+    """Mixin for a ManiSkill ``BaseEnv`` subclass: reward mode ``drem``, kwargs ``drem_checkpoint``, ``drem_form``.
 
     ``drem_form`` (``drem.reward.DREM_FORMS``): ``"paper"`` pays ``R(s)``, ``"shifted"`` ``R(s) - 1``
     (never positive: safe where success ends the episode).

@@ -17,7 +17,10 @@ from drem_maniskill.drem.reward import DREMReward, apply_form, check_form
 
 
 class DREMRewardWrapper(gym.Wrapper):
-    """Replace a ManiSkill env's reward with a DREM reward (``form``: ``drem.reward.DREM_FORMS``); the old one goes to ``info``."""
+    """Replace a ManiSkill env's reward with a DREM reward; the old one goes to ``info``.
+
+    ``form``: one of ``drem.reward.DREM_FORMS``.
+    """
 
     def __init__(self, env: gym.Env, checkpoint: str, form: str = "paper"):
         super().__init__(env)

@@ -210,7 +210,9 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
     def _load_lighting(self, options: dict):
         shadow = self.render_style == "full" and self.enable_shadow
         self.scene.set_ambient_light([0.35, 0.35, 0.35])
-        self.scene.add_directional_light([0.5, 0.3, -1], [1.2, 1.2, 1.2], shadow=shadow, shadow_scale=2, shadow_map_size=1024)
+        self.scene.add_directional_light(
+            [0.5, 0.3, -1], [1.2, 1.2, 1.2], shadow=shadow, shadow_scale=2, shadow_map_size=1024
+        )
         if self.render_style == "full":
             self.scene.add_directional_light([0, 0, -1], [0.6, 0.6, 0.6])
 
@@ -248,9 +250,10 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         super()._after_reconfigure(options)
         robot = self.agent.robot
         arm = getattr(self.agent, "arm_joint_names", None)
-        self._arm_idx = torch.tensor([robot.active_joints_map[n].active_index[0] for n in arm], device=self.device).long()
+        joints = robot.active_joints_map
+        self._arm_idx = torch.tensor([joints[n].active_index[0] for n in arm], device=self.device).long()
         self._finger_idx = torch.tensor(
-            [robot.active_joints_map[n].active_index[0] for n in self.agent.gripper_joint_names], device=self.device
+            [joints[n].active_index[0] for n in self.agent.gripper_joint_names], device=self.device
         ).long()
         self._ik = Kinematics(str(FULL_URDF), "panda_hand_tcp", robot, self._arm_idx)
         self.ft = WristFTSensor(robot, self.ft_link, self.ft_history, self.device)
@@ -261,15 +264,17 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             b = len(env_idx)
             rng = self._batched_episode_rng[env_idx]
             # Socket on the floor: small xy and yaw jitter.
-            socket_xy = torch.as_tensor(rng.uniform(-self.socket_xy_range, self.socket_xy_range, size=(2,)), dtype=torch.float32)
-            socket_yaw = torch.as_tensor(rng.uniform(-self.socket_yaw_range, self.socket_yaw_range), dtype=torch.float32)
+            xy_range, yaw_range = self.socket_xy_range, self.socket_yaw_range
+            socket_xy = torch.as_tensor(rng.uniform(-xy_range, xy_range, size=(2,)), dtype=torch.float32)
+            socket_yaw = torch.as_tensor(rng.uniform(-yaw_range, yaw_range), dtype=torch.float32)
             socket_pose = self._socket_pose_at(socket_xy + torch.tensor(self.socket_center), socket_yaw, torch.zeros(b))
             self.socket.set_pose(socket_pose)
             top = socket_pose * Pose.create_from_pq(torch.tensor([[0, 0, self.socket_height]]).repeat(b, 1))
 
             # Part tip in the start region: above the opening with an xy offset and a yaw error.
             off = torch.zeros(b, 3)
-            off[:, :2] = torch.as_tensor(rng.uniform(-self.start_xy_range, self.start_xy_range, size=(2,)), dtype=torch.float32)
+            xy_range = self.start_xy_range
+            off[:, :2] = torch.as_tensor(rng.uniform(-xy_range, xy_range, size=(2,)), dtype=torch.float32)
             off[:, 2] = torch.as_tensor(rng.uniform(*self.start_height_range), dtype=torch.float32)
             part_yaw = torch.as_tensor(rng.uniform(-self.start_yaw_range, self.start_yaw_range), dtype=torch.float32)
             part_pose = Pose.create_from_pq(top.p + off, _yaw_quat(socket_yaw + part_yaw))

@@ -77,7 +77,11 @@ class USBInsertionEnv(InsertionEnv):
             # insulator block filling the lower half of the cavity (the key)
             ([0, (-h + 2 * t) / 2, length], [w - 2 * t, (h - 2 * t) / 2, length], insulator),
             # overmoulded body the gripper holds
-            ([0, 0, self.shell_length + self.body[2] / 2], [self.body[0] / 2, self.body[1] / 2, self.body[2] / 2], material),
+            (
+                [0, 0, self.shell_length + self.body[2] / 2],
+                [self.body[0] / 2, self.body[1] / 2, self.body[2] / 2],
+                material,
+            ),
         ]
         for p, half, mat in boxes:
             builder.add_box_collision(sapien.Pose(p), half)

@@ -127,7 +127,8 @@ class ExpertPolicy(ScriptedPolicy):
     approach at ``fine_speed`` and the first ``fine_depth`` of the insertion ``fine_step`` at a
     time (or ``descent_step``, where that is smaller). The backward sampler walks the demo back
     step by step, so these slow steps are what give the progress tree depths that tell hovering
-    above the opening, touching its rim and being in it apart (docs/drem.md).
+    above the opening, touching its rim and being in it apart (docs/experiment-log.md, "A slower expert near the
+    opening, and actions that follow the expert's step").
     """
 
     pre_height = 0.006
@@ -151,7 +152,8 @@ class ExpertPolicy(ScriptedPolicy):
         if descend_from is not None:
             # The expert usually aligns 2-3 cm above the opening and then crawls down at the entry step from there,
             # spending half the demo hovering; from descend_from it approaches the pre-insertion point as it
-            # approached the axis (record-expert --descend-from, docs/drem.md).
+            # approached the axis (record-expert --descend-from; docs/experiment-log.md, "A shorter approach above
+            # the port").
             if not 0 < descend_from <= 0.05:
                 raise ValueError(f"descend_from is metres above the socket's top face in (0, 0.05], got {descend_from}")
             self.descend_from = float(descend_from)

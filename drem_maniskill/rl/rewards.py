@@ -131,7 +131,7 @@ REWARDS: dict[str, RewardSpec] = {
     "drem": _drem_spec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", False,
                        stock_tasks=True),
     "drem-guarded": RewardSpec("DREM scaled down where the model cannot reconstruct the state (not in the paper; "
-                               "docs/drem.md)", _drem_guarded, checkpoint=True),
+                               "docs/rewards.md)", _drem_guarded, checkpoint=True),
     "drem-image": _drem_spec("DREM on images only, rewards/<task>/drem_image.pt", True),
     # VICE replaces the reward; the env's sparse one is cheap and is kept in info["original_reward"].
     "vice": RewardSpec("VICE-RAQ success classifier on the images", env_reward_mode("sparse"), learner=_vice_learner),

@@ -48,7 +48,8 @@ def test_checkpoint_never_executes_code(tmp_path, monkeypatch):
 
 
 def test_compatibility_check_names_every_difference():
-    header = dict(env_id="PegInHole-v1", camera_uids=["fixed_camera", "wrist_camera"], modalities=["fixed", "wrist", "ft"], ft_history=8)
+    header = dict(env_id="PegInHole-v1", camera_uids=["fixed_camera", "wrist_camera"],
+                  modalities=["fixed", "wrist", "ft"], ft_history=8)
     check_compatible(header, "PegInHole-v1", {"fixed_camera": (128, 128), "wrist_camera": (128, 128)}, 8)
     with pytest.raises(CheckpointError) as err:
         check_compatible(header, "USBInsertion-v1", {"fixed_camera": (128, 128)}, 4)

@@ -24,7 +24,8 @@ def test_contact_plateau_is_align_successs_reward_between_contact_and_insertion_
               insertion_depth=[-0.01, -0.005, 0.0, 0.0, 0.0005, 0.002, 0.01])
     untouched = dict(rewards=[0.3, 0.3], force=[0, 0], insertion_depth=[-0.01, -0.01])
     out = contact_plateau([ep, untouched], direct_final=0.9)
-    assert out["episodes"] == 1 and out["mean_reward"] == pytest.approx(0.6) and out["fraction"] == pytest.approx(0.6 / 0.9)
+    assert out["episodes"] == 1 and out["mean_reward"] == pytest.approx(0.6)
+    assert out["fraction"] == pytest.approx(0.6 / 0.9)
     assert contact_plateau([untouched], 0.9)["fraction"] is None
     assert "on_face" not in out  # no radial offsets recorded: no split
 
@@ -33,8 +34,8 @@ def test_contact_plateau_splits_its_steps_into_the_face_and_the_opening():
     from drem_maniskill.pipeline.examine import contact_plateau
 
     # Contact from step 1; on the face 3 mm and 2 mm off, then slid to the mouth (0.4 mm off, 0.3 mm in).
-    ep = dict(rewards=[0.2, 0.5, 0.7, 0.9, 1.0], force=[0, 6, 6, 2, 1], insertion_depth=[-0.01, 0.0, 0.0, 0.0003, 0.005],
-              radial_offset=[0.003, 0.003, 0.002, 0.0004, 0.0002])
+    ep = dict(rewards=[0.2, 0.5, 0.7, 0.9, 1.0], force=[0, 6, 6, 2, 1],
+              insertion_depth=[-0.01, 0.0, 0.0, 0.0003, 0.005], radial_offset=[0.003, 0.003, 0.002, 0.0004, 0.0002])
     out = contact_plateau([ep], direct_final=1.0)
     assert out["mean_reward"] == pytest.approx(0.7)
     assert out["on_face"] == dict(steps=2, mean_reward=pytest.approx(0.6), fraction=pytest.approx(0.6))
@@ -76,7 +77,8 @@ def test_face_lead_is_the_rise_towards_the_opening_within_each_episode_on_the_fa
     assert flat["to_go"] == pytest.approx(0.2, abs=0.01)  # (1 - 0.8) / (1 - 0)
     # An offset per episode moves the whole face: it is reported apart and does not hide the lead.
     shifted = face_lead(rows(lambda mm: 0.8 - 0.02 * mm, shift=1.0), "r", start=0.0, inserted=1.0)
-    assert shifted["lead"] > 1.5 and shifted["order"] > 0.8 and shifted["between_episodes"] > 0.1 > leading["between_episodes"]
+    assert shifted["lead"] > 1.5 and shifted["order"] > 0.8
+    assert shifted["between_episodes"] > 0.1 > leading["between_episodes"]
     # Another reward's scale and sign: the same fraction still to go.
     assert face_lead(rows(lambda mm: 0.8), "r", start=-2.0, inserted=1.0)["to_go"] == pytest.approx(0.2 / 3, abs=0.01)
     assert face_lead(rows(lambda mm: 0.8)[-2:], "r", 0.0, 1.0)["lead"] is None

@@ -1,4 +1,7 @@
-"""The DREM chain on ManiSkill's own PegInsertionSide-v1: its cameras, no F/T, the wrapper, the alias, the examination."""
+"""The DREM chain on ManiSkill's own PegInsertionSide-v1.
+
+Its cameras, no F/T, the wrapper, the alias, the examination.
+"""
 
 from __future__ import annotations
 
@@ -57,7 +60,8 @@ def test_stock_checkpoint_drives_the_wrapper(stock_pipeline):
 
     header, _ = load_checkpoint(stock_pipeline["checkpoint"])
     assert header["env_id"] == STOCK and header["camera_uids"] == ["base_camera", "hand_camera"]
-    env = DREMRewardWrapper(gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose"), stock_pipeline["checkpoint"])
+    stock_env = gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose")
+    env = DREMRewardWrapper(stock_env, stock_pipeline["checkpoint"])
     try:
         env.reset(seed=1)
         _, reward, _, _, info = env.step(torch.zeros(1, 7))

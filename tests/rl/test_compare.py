@@ -65,14 +65,16 @@ def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    env = dict(os.environ, OUT=str(tmp_path), EVAL_EVERY="8", EVAL_EPISODES="1", LEARNING_STARTS="8", EXTRA="--train-freq 2",
-               PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
-    proc = subprocess.run(["bash", str(root / "scripts" / "sac_comparison.sh"), "PegInHole-v1", "16", "0", "sparse", "engineered"],
+    env = dict(os.environ, OUT=str(tmp_path), EVAL_EVERY="8", EVAL_EPISODES="1", LEARNING_STARTS="8",
+               EXTRA="--train-freq 2", PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
+    script = str(root / "scripts" / "sac_comparison.sh")
+    proc = subprocess.run(["bash", script, "PegInHole-v1", "16", "0", "sparse", "engineered"],
                           env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "done sparse 0" in proc.stdout and "done engineered 0" in proc.stdout
     for reward in ("sparse", "engineered"):
-        assert [r["steps"] for r in read_eval_csv(tmp_path / "PegInHole-v1" / reward / "seed0" / "eval.csv")] == [0, 8, 16]
+        rows = read_eval_csv(tmp_path / "PegInHole-v1" / reward / "seed0" / "eval.csv")
+        assert [r["steps"] for r in rows] == [0, 8, 16]
     summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
     # The light preset's settings, and EXTRA's.
     light = ", ends at success, norm state+ft, actions x0.5, updates x0.5, overlapped"
@@ -103,7 +105,8 @@ def test_runs_that_end_at_success_or_use_another_checkpoint_are_curves_of_their_
                           "drem, shifted, ends at success, norm state+ft, actions x0.5", "drem, paper, ends at success",
                           "engineered, updates x0.25, bf16", "engineered, overlapped",
                           "vice"}  # a learned reward's env stays in the run's process: nothing overlapped
-    assert table["engineered, ends at success"]["steps_to_50"] == 1000 and table["engineered"]["steps_to_50"] == "not reached"
+    assert table["engineered, ends at success"]["steps_to_50"] == 1000
+    assert table["engineered"]["steps_to_50"] == "not reached"
 
 
 def test_the_settings_every_curve_of_a_panel_shares_go_to_its_title():

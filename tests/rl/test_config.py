@@ -58,12 +58,12 @@ def test_state_preset_sees_no_image_and_nothing_a_reward_is_computed_from():
         env.close()
     # The image presets keep their cameras; DREM's policy alone gets F/T in the paper's.
     assert RLConfig.preset("paper", reward="drem").uses_images and RLConfig.preset("light").uses_images
-    assert [RLConfig.preset("paper", reward=r).uses_ft for r in ("drem", "drem-image", "engineered", "sparse", "vice")] == [
-        True, False, False, False, False]
+    rewards = ("drem", "drem-image", "engineered", "sparse", "vice")
+    assert [RLConfig.preset("paper", reward=r).uses_ft for r in rewards] == [True, False, False, False, False]
 
 
 def test_running_norm_learns_the_statistics_in_training_and_keeps_them_in_evaluation():
-    """``obs_norm``: inputs of any scale come out about zero-mean, unit-variance; evaluation does not move the statistics."""
+    """``obs_norm``: inputs of any scale come out about zero-mean, unit-variance; evaluation keeps the statistics."""
     import torch
 
     from drem_maniskill.rl.policy import RunningNorm
@@ -135,7 +135,10 @@ def test_obs_norm_and_action_scale_reach_the_policy_and_the_controller():
 
 @pytest.mark.parametrize("native", [True, False])
 def test_state_preset_takes_bfloat16_only_where_the_cpu_has_it(monkeypatch, native):
-    """Emulated bfloat16 made the state preset 6.5-6.9x slower (docs/rl.md, "Speed"): the preset asks the CPU; --bf16 still decides."""
+    """Emulated bfloat16 made the state preset 6.5-6.9x slower (docs/rl.md, "Speed"): the preset asks the CPU.
+
+    ``--bf16`` still decides.
+    """
     import drem_maniskill.rl.config as config_module
 
     monkeypatch.setattr(config_module, "native_bf16", lambda: native)

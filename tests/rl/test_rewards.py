@@ -87,7 +87,10 @@ def test_a_run_can_name_its_own_reward_checkpoint(tmp_path):
 
 
 def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mislead(tmp_path):
-    """``drem_form="shifted"`` (``--drem-form``) pays R - 1 for the same state; the guard and non-DREM rewards refuse it."""
+    """``drem_form="shifted"`` (``--drem-form``) pays R - 1 for the same state.
+
+    The guard and the non-DREM rewards refuse it.
+    """
     import torch
 
     from drem_maniskill.rl.run_env import make_env
@@ -96,7 +99,8 @@ def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mi
     ckpt = tiny_checkpoint(tmp_path / "drem.pt", "PegInHole-v1")
     rewards = {}
     for form in ("paper", "shifted"):
-        env, _ = make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=ckpt, drem_form=form), for_eval=True)
+        config = RLConfig.preset("state", reward="drem", reward_checkpoint=ckpt, drem_form=form)
+        env, _ = make_env(config, for_eval=True)
         try:
             env.reset(seed=5)
             action = torch.zeros(1, 6)
@@ -115,4 +119,5 @@ def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mi
     with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):
         make_env(RLConfig.preset("state", reward="engineered", drem_form="shifted"), for_eval=True)
     with pytest.raises(ValueError, match="drem-guarded pays only the paper's form"):
-        make_env(RLConfig.preset("state", reward="drem-guarded", reward_checkpoint=ckpt, drem_form="shifted"), for_eval=True)
+        config = RLConfig.preset("state", reward="drem-guarded", reward_checkpoint=ckpt, drem_form="shifted")
+        make_env(config, for_eval=True)

@@ -93,7 +93,8 @@ def test_a_gradient_step_runs_the_encoder_twice_instead_of_five_times(tmp_path):
     for shared in (False, True):
         model = _model(tmp_path / str(shared), shared=shared)
         calls = []
-        extractors = {model.actor.features_extractor, model.critic.features_extractor, model.critic_target.features_extractor}
+        extractors = {model.actor.features_extractor, model.critic.features_extractor,
+                      model.critic_target.features_extractor}
         hooks = [e.register_forward_hook(lambda *a: calls.append(1)) for e in extractors]
         model.train(gradient_steps=1, batch_size=16)
         for h in hooks:
@@ -117,7 +118,8 @@ def test_a_saved_shared_encoder_model_loads_and_keeps_its_update(tmp_path):
     assert isinstance(loaded.policy, SharedEncoderPolicy)
     assert loaded.policy.critic.features_extractor is loaded.policy.actor.features_extractor
     obs = {k: v[None] for k, v in TinyCameraEnv().reset(seed=3)[0].items()}
-    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0], atol=1e-6)
+    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0],
+                               atol=1e-6)
 
 
 def test_both_ways_of_sharing_at_once_are_refused():
@@ -127,7 +129,8 @@ def test_both_ways_of_sharing_at_once_are_refused():
 
 def test_the_image_presets_share_the_encoder_and_older_runs_keep_their_layout(tmp_path):
     assert RLConfig.preset("light").shared_encoder and RLConfig.preset("paper").shared_encoder
-    # A plain RLConfig() is the light preset without the learnability and speed settings it took in stops 17-18.
+    # A plain RLConfig() is the light preset without its learnability settings (LEARNABLE) and its overlapped env:
+    # those are the presets' choices, not the dataclass defaults.
     plain, light = RLConfig().to_dict(), RLConfig.preset("light").to_dict()
     assert RLConfig().preset == "light"
     assert {k: light[k] for k in light if light[k] != plain[k]} == dict(

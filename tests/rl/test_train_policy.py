@@ -16,8 +16,8 @@ from drem_maniskill.rl.train_policy import (
 
 
 def _tiny(tmp_path, reward="dense", **kw) -> RLConfig:
-    return RLConfig.preset("light", task="PegInHole-v1", reward=reward, seed=0, steps=64, learning_starts=16, batch_size=16,
-                           eval_every=32, eval_episodes=2, threads=1, out=str(tmp_path / "run"), **kw)
+    return RLConfig.preset("light", task="PegInHole-v1", reward=reward, seed=0, steps=64, learning_starts=16,
+                           batch_size=16, eval_every=32, eval_episodes=2, threads=1, out=str(tmp_path / "run"), **kw)
 
 
 @pytest.mark.slow
@@ -153,7 +153,9 @@ def test_train_freq_sets_the_update_ratio_and_bf16_runs_the_gradient_step_in_bfl
             model = algo_spec(config.algo).build(config, venv)
             seen = set()
             layer = model.critic.q_networks[0][0]
-            hook = layer.register_forward_hook(lambda m, i, out: seen.add(out.dtype) if torch.is_grad_enabled() else None)
+            hook = layer.register_forward_hook(
+                lambda m, i, out: seen.add(out.dtype) if torch.is_grad_enabled() else None
+            )
             model.learn(total_timesteps=48)
             hook.remove()
             updates[name], dtypes[name] = model._n_updates, seen
@@ -168,7 +170,8 @@ def test_train_freq_sets_the_update_ratio_and_bf16_runs_the_gradient_step_in_bfl
 @pytest.mark.slow
 def test_an_overlapped_run_steps_its_env_in_a_child_process_closes_it_and_resumes(tmp_path):
     """``overlap_env``: the run's env in a child process (closed when the run stops, interrupted or not), the
-    gradient steps made while it steps; a rerun resumes from the checkpoint. VICE, which learns in this process, stays here."""
+    gradient steps made while it steps; a rerun resumes from the checkpoint. VICE, which learns in this process,
+    stays here."""
     import multiprocessing
 
     from stable_baselines3.common.callbacks import BaseCallback
@@ -185,8 +188,8 @@ def test_an_overlapped_run_steps_its_env_in_a_child_process_closes_it_and_resume
                 raise KeyboardInterrupt
             return True
 
-    config = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", steps=64, learning_starts=16, batch_size=16,
-                             eval_every=32, eval_episodes=2, overlap_env=True, out=str(tmp_path / "run"))
+    config = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", steps=64, learning_starts=16,
+                             batch_size=16, eval_every=32, eval_episodes=2, overlap_env=True, out=str(tmp_path / "run"))
     assert config.overlap_env_used and not RLConfig.preset("state", reward="vice", overlap_env=True).overlap_env_used
     with pytest.raises(KeyboardInterrupt):
         train_policy(config, callbacks=[Interrupt()])

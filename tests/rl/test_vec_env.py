@@ -28,7 +28,8 @@ class SucceedsAtStep3:
     def step(self, action):
         self.t += 1
         success = torch.tensor([self.t >= 3])
-        return {"state": torch.full((1, 1), float(self.t))}, torch.ones(1), success, torch.tensor([False]), {"success": success}
+        obs = {"state": torch.full((1, 1), float(self.t))}
+        return obs, torch.ones(1), success, torch.tensor([False]), {"success": success}
 
 
 @pytest.mark.parametrize("terminate", [False, True])
@@ -52,7 +53,10 @@ def test_success_ends_an_episode_as_a_terminal_state_only_when_asked(terminate):
 
 
 class Hooked(ManiSkillDictVecEnv):
-    """``SubprocDictVecEnv``'s order of events in one process: send the action, run ``while_stepping``, collect the step."""
+    """``SubprocDictVecEnv``'s order of events in one process.
+
+    Send the action, run ``while_stepping``, collect the step.
+    """
 
     def __init__(self, model_updates, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -84,7 +88,10 @@ def _sac_updates_seen_by_each_action(overlap: bool, steps: int = 24, learning_st
 
 
 def test_overlapped_sac_makes_the_same_updates_while_the_env_steps_each_action_one_update_older(tmp_path):
-    """``SAC.train_while_env_steps``: SB3's updates, each made while the next env step runs, the last one before learn returns."""
+    """``SAC.train_while_env_steps``: SB3's updates, each made while the next env step runs.
+
+    The last one is made before ``learn`` returns.
+    """
     plain, plain_env = _sac_updates_seen_by_each_action(overlap=False)
     model, venv = _sac_updates_seen_by_each_action(overlap=True)
     assert model._n_updates == plain._n_updates == 24 - 4
