@@ -123,6 +123,9 @@ def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: 
             quality={k: quality[k] for k in ("value_order_spearman", "final_reward_auroc", "random_mean_reward",
                                              "search_fail_contact_loss")},
         )
+        # Where the examination plot's Direct Success curve ends: a working reward pays about 1 at the goal.
+        finals = [run[-1] for run in quality["curves"]["direct_success"] if len(run)]
+        summary[task]["quality"]["direct_success_final_reward"] = float(np.mean(finals)) if finals else None
         summary[task]["plots"].append(str(folder / "examination" / "examination.png"))
     tmp = root / ".summary.json.tmp"
     tmp.write_text(json.dumps(summary, indent=2))
