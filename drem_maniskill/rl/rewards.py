@@ -146,8 +146,10 @@ def reward_checkpoint(name: str, task: str, given: Optional[str] = None) -> Opti
     spec = reward_spec(name)
     if not spec.checkpoint:
         return None
+    if given:  # named as given, so the run's record says what was asked for even before the file exists
+        return Path(given)
     try:
-        return drem_checkpoints.resolve_checkpoint(task, given, image_only=spec.image_only)
+        return drem_checkpoints.resolve_checkpoint(task, None, image_only=spec.image_only)
     except drem_checkpoints.CheckpointNotFoundError:
         return None
 
