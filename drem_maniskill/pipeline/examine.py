@@ -430,7 +430,7 @@ def plot_examination(result: dict, path: Path) -> None:
     dense = {k: v for k, v in result.get("dense_curves", {}).items() if any(len(r) for r in v)}
     panels = [("curves", "DREM reward")] + ([("dense_curves", "ManiSkill normalized_dense")] if dense else [])
     held = {k: v for k, v in result.get("held_positions", {}).items() if v["mean"] is not None}
-    fig, axes = plt.subplots(1, len(panels) + bool(held), figsize=(7 * (len(panels) + bool(held)), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels) + bool(held), figsize=(7 * (len(panels) + bool(held)), 5.5), squeeze=False)
     if held:
         # The reward with the tip held in place, mean and spread over episodes (colours randomised).
         ax = axes[0, -1]
