@@ -239,8 +239,8 @@ def _add_build_reward(sub) -> None:
                                             "examine, calibrate; each stage resumes")
     p.add_argument("--task", required=True, help="env id whose recipe (tasks/<task>/recipe.toml) to run")
     p.add_argument("--scale", default="full", choices=["tiny", "demo", "full"],
-                   help="tiny: a few minutes, for tests; demo: about 7 minutes a task; full: the recipe as shipped, hours "
-                        "(default: %(default)s)")
+                   help="tiny: a few minutes, for tests; demo: about 7 minutes a task; full: the recipe as shipped, "
+                        "hours (default: %(default)s)")
     p.add_argument("--out", help="output folder (default: the recipe's, for the scale)")
     p.add_argument("--recipe", help="recipe file instead of the task's own")
     p.set_defaults(func=_cmd_build_reward)
@@ -272,7 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (_add_demo, _add_record_expert, _add_scripted_success, _add_examine, _add_sample, _add_train_reward,
                 _add_build_reward, _add_calibrate_support):
         add(sub)
-    add_subcommands(sub)  # train-policy, compare (drem_maniskill/rl, docs/rl.md)
+    add_subcommands(sub)  # train-policy, sweep, compare (drem_maniskill/rl, docs/rl.md)
     _add_run_script(sub)
     return parser
 

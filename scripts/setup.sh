@@ -3,7 +3,7 @@
 # first, so it must be cheap when nothing changed.
 #
 #   1. a virtualenv at .venv (created with the system's python3, reused after)
-#   2. `pip install -e ".[test]"` into it -- skipped while pyproject.toml is
+#   2. `pip install -e ".[test,sweep]"` into it -- skipped while pyproject.toml is
 #      unchanged since the last successful install (sha256 kept in a stamp)
 #   3. a Vulkan device for SAPIEN (scripts/ensure_vulkan.sh)
 set -euo pipefail
@@ -33,17 +33,18 @@ else
         { echo "[setup] ERROR: 'python3 -m venv' failed; on Debian/Ubuntu: apt-get install python3-venv" >&2; exit 1; }
 fi
 
-# 2. The package, editable, with test extras.  The stamp holds the sha256 of
-#    pyproject.toml and is written only after pip succeeded, so an
-#    interrupted install is retried next time.  We also check that the
-#    distribution is really there, in case someone pip-uninstalled it.
+# 2. The package, editable, with the test and sweep (Ray) extras.  The
+#    stamp holds the sha256 of pyproject.toml and is written only after pip
+#    succeeded, so an interrupted install is retried next time.  We also
+#    check that the distribution is really there, in case someone
+#    pip-uninstalled it.
 WANT="$(sha256sum pyproject.toml | cut -d' ' -f1)"
 HAVE="$(cat "$STAMP" 2>/dev/null || true)"
 if [ "$WANT" = "$HAVE" ] && [ -x "$VENV/bin/drem-maniskill" ] &&
     "$PY" -c 'import importlib.metadata as m; m.version("drem-maniskill")' 2>/dev/null; then
     say "package already installed and pyproject.toml unchanged; skipping pip install"
 else
-    say "pip install -e \".[test]\" (first time or pyproject.toml changed; takes a few minutes) ..."
+    say "pip install -e \".[test,sweep]\" (first time or pyproject.toml changed; takes a few minutes) ..."
     rm -f "$STAMP"
     # Everything here runs on the CPU. Where a CPU-only torch build is at hand (these
     # machines keep torch 2.13.0+cpu locally), take it first so that pip does not pull
@@ -52,7 +53,7 @@ else
         "$PY" -m pip install "torch==2.13.0" 2>/dev/null ||
             say "torch 2.13.0 not available here; pip will choose a torch in pyproject's range"
     fi
-    "$PY" -m pip install -e ".[test]"
+    "$PY" -m pip install -e ".[test,sweep]"
     echo "$WANT" >"$STAMP"
 fi
 

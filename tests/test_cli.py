@@ -21,7 +21,7 @@ def run(*args, cwd=None) -> str:
 
 def test_help_of_every_subcommand():
     for cmd in ("demo", "record-expert", "scripted-success", "examine", "sample", "train-reward", "build-reward",
-                "calibrate-support", "train-policy"):
+                "calibrate-support", "train-policy", "sweep"):
         assert "usage: drem-maniskill " + cmd in run(cmd, "--help")
 
 

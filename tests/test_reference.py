@@ -29,7 +29,7 @@ def test_the_reference_names_every_subcommand_and_config_field():
     from drem_maniskill.rl.config import RLConfig
 
     text = _generator().render()
-    for command in ("sample", "train-reward", "train-policy", "build-reward", "examine", "demo"):
+    for command in ("sample", "train-reward", "train-policy", "sweep", "build-reward", "examine", "demo"):
         assert f"### `drem-maniskill {command}`" in text
     for cls in (TrainConfig, RLConfig):
         for f in dataclasses.fields(cls):

@@ -1,4 +1,4 @@
-"""``python -m drem_maniskill.rl train-policy|compare``: the two commands of docs/rl.md over this package."""
+"""``python -m drem_maniskill.rl train-policy|sweep|compare``: the commands of docs/rl.md over this package."""
 
 from __future__ import annotations
 
@@ -27,6 +27,19 @@ def _cmd_train_policy(args) -> None:
     print(json.dumps(result, indent=2))
 
 
+def _cmd_sweep(args) -> None:
+    from drem_maniskill.rl.sweep import configs_from_args, run_sweep
+
+    configs = configs_from_args(args)  # every unknown name fails here, before Ray starts
+    try:
+        result = run_sweep(configs, args.out, address=args.address, cpus_per_trial=args.cpus_per_trial,
+                           gpus_per_trial=args.gpus_per_trial, max_retries=args.max_retries)
+    except ImportError as err:
+        raise SystemExit(f"drem-maniskill sweep: error: {err}")
+    if result["failed"]:
+        raise SystemExit(f"drem-maniskill sweep: {result['failed']} trials failed; rerun the command to resume them")
+
+
 def _cmd_compare(args) -> None:
     from drem_maniskill.rl.compare import compare_runs
 
@@ -48,7 +61,7 @@ def _rl_choices() -> dict:
 
 
 def add_subcommands(sub) -> None:
-    """Add ``train-policy`` and ``compare`` to an argparse subparsers object (here and in ``drem-maniskill``)."""
+    """Add ``train-policy``, ``sweep`` and ``compare`` to an argparse subparsers object (here, ``drem-maniskill``)."""
     from drem_maniskill.rl.config import PRESETS, RLConfig
     from drem_maniskill.utils.config_cli import add_dataclass_args
 
@@ -61,11 +74,44 @@ def add_subcommands(sub) -> None:
     add_dataclass_args(p, RLConfig, skip=RL_SKIP, aliases=RL_ALIASES, choices=_rl_choices(),
                        presets={name: RLConfig.preset(name) for name in PRESETS})
     p.set_defaults(func=_cmd_train_policy)
+    _add_sweep(sub)
     p = sub.add_parser("compare", help="success against env steps per task and reward, with a table")
     p.add_argument("runs", nargs="+", help="run dirs of train-policy")
     p.add_argument("--out", default="outputs/rl/comparison", help="output dir (default: %(default)s)")
     p.add_argument("--band", default="minmax", choices=["minmax", "std"], help="spread over seeds")
     p.set_defaults(func=_cmd_compare)
+
+
+def _add_sweep(sub) -> None:
+    """The ``sweep`` subcommand: its grid flags, and every train-policy flag but the ones a trial sets."""
+    from drem_maniskill.rl.config import PRESETS, RLConfig
+    from drem_maniskill.rl.sweep import SWEEP_FIELDS
+    from drem_maniskill.utils.config_cli import add_dataclass_args
+
+    p = sub.add_parser("sweep", help="train-policy over tasks x rewards x seeds (x presets) on Ray; rerun to resume",
+                       description="One train-policy run per task x reward x seed (x preset) into "
+                                   "OUT/TASK/REWARD/seedS (OUT/PRESET/TASK/... with more than one preset), run "
+                                   "on Ray: this machine's cores, or a running cluster with --address. Finished "
+                                   "runs are skipped, interrupted ones resume from their checkpoints. Every other "
+                                   "flag sets the RLConfig field of its name in every trial, as in train-policy.")
+    p.add_argument("--tasks", nargs="+", required=True, help="env ids")
+    p.add_argument("--rewards", nargs="+", required=True, help="reward names (rl.rewards.REWARDS)")
+    p.add_argument("--seeds", nargs="+", type=int, required=True, help="training seeds")
+    p.add_argument("--presets", "--preset", nargs="+", default=["light"], choices=list(PRESETS), metavar="PRESET",
+                   help=f"presets among {', '.join(PRESETS)} (default: light)")
+    p.add_argument("--steps", type=int, required=True, help="env steps of every run")
+    p.add_argument("--out", default="outputs/rl", help="root of the run folders and logs/ (default: %(default)s)")
+    p.add_argument("--address", default=None,
+                   help="a running Ray cluster (e.g. auto, or ray://host:10001); default: a local Ray on this "
+                        "machine's cores. On a cluster, --out must be a folder every node sees")
+    p.add_argument("--cpus-per-trial", type=float, default=1, help="CPUs Ray reserves per trial (default: %(default)s)")
+    p.add_argument("--gpus-per-trial", type=float, default=0, help="GPUs Ray reserves per trial (default: %(default)s)")
+    p.add_argument("--max-retries", type=int, default=2,
+                   help="reruns of a trial whose worker died or whose env process was lost; each resumes from "
+                        "its checkpoint (default: %(default)s)")
+    add_dataclass_args(p, RLConfig, skip=SWEEP_FIELDS, aliases=RL_ALIASES, choices=_rl_choices(),
+                       presets={name: RLConfig.preset(name) for name in PRESETS})
+    p.set_defaults(func=_cmd_sweep)
 
 
 def build_parser() -> argparse.ArgumentParser:

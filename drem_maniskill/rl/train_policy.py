@@ -201,6 +201,13 @@ def _comparable(config: RLConfig) -> dict:
     return d
 
 
+def check_resumable(config: RLConfig) -> None:
+    """A ValueError when ``config.run_dir`` holds a checkpointed run whose config differs beyond resumable fields."""
+    saved = config.run_dir / "config.json"
+    if saved.exists() and latest_checkpoint(config.run_dir) is not None:
+        _check_resumable(RLConfig.load(saved), config)
+
+
 def _check_resumable(saved: RLConfig, config: RLConfig) -> None:
     now = _comparable(config)
     diff = {k: (v, now[k]) for k, v in _comparable(saved).items() if k not in RESUMABLE_FIELDS and v != now[k]}
@@ -254,8 +261,7 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
     run_dir = config.run_dir
     run_dir.mkdir(parents=True, exist_ok=True)
     ckpt = latest_checkpoint(run_dir)
-    if (run_dir / "config.json").exists() and ckpt is not None:
-        _check_resumable(RLConfig.load(run_dir / "config.json"), config)
+    check_resumable(config)
     config.save(run_dir / "config.json")
     pinned = pin_reward_checkpoint(config, run_dir, resuming=ckpt is not None)
 

@@ -8,10 +8,7 @@ import json
 import pytest
 
 from drem_maniskill.rl.compare import compare_runs, steps_to_reach
-from drem_maniskill.rl.train_policy import (
-    EVAL_COLUMNS,
-    read_eval_csv,
-)
+from drem_maniskill.rl.train_policy import EVAL_COLUMNS
 
 
 def test_steps_to_reach_is_the_first_evaluation_at_the_level():
@@ -54,32 +51,6 @@ def test_compare_two_fake_runs(tmp_path):
     assert rows[("PegInHole-v1", "sparse")]["final_success"] == pytest.approx(0.2)
     assert rows[("USBInsertion-v1", "drem")]["steps_to_50"] == 1000
     assert "not reached" in open(result["markdown"]).read()
-
-
-@pytest.mark.slow
-def test_comparison_script_runs_every_reward_and_draws_the_curves(tmp_path):
-    """scripts/sac_comparison.sh (the one command behind docs/results.md), at a tiny scale."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[2]
-    env = dict(os.environ, OUT=str(tmp_path), EVAL_EVERY="8", EVAL_EPISODES="1", LEARNING_STARTS="8",
-               EXTRA="--train-freq 2", PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
-    script = str(root / "scripts" / "sac_comparison.sh")
-    proc = subprocess.run(["bash", script, "PegInHole-v1", "16", "0", "sparse", "engineered"],
-                          env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "done sparse 0" in proc.stdout and "done engineered 0" in proc.stdout
-    for reward in ("sparse", "engineered"):
-        rows = read_eval_csv(tmp_path / "PegInHole-v1" / reward / "seed0" / "eval.csv")
-        assert [r["steps"] for r in rows] == [0, 8, 16]
-    summary = json.loads((tmp_path / "comparison-PegInHole-v1" / "comparison.json").read_text())
-    # The light preset's settings, and EXTRA's.
-    light = ", ends at success, norm state+ft, actions x0.5, updates x0.5, overlapped"
-    assert {row["reward"] for row in summary["rows"]} == {"sparse" + light, "engineered" + light}
-    assert (tmp_path / "comparison-PegInHole-v1" / "comparison.png").stat().st_size > 10_000
 
 
 def test_runs_that_end_at_success_or_use_another_checkpoint_are_curves_of_their_own(tmp_path):

@@ -10,9 +10,8 @@ from pathlib import Path
 import pytest
 
 from drem_maniskill.drem.checkpoint import resolve_checkpoint
-from drem_maniskill.rl.__main__ import RL_SKIP, add_subcommands
-from drem_maniskill.rl.config import RLConfig
-from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
+from drem_maniskill.rl.__main__ import add_subcommands
+from drem_maniskill.rl.sweep import configs_from_args
 
 ROOT = Path(__file__).resolve().parents[2]
 RUNS = sorted((ROOT / "docs/results/comparison_state").glob("*/*/seed*/config.json"))
@@ -21,14 +20,14 @@ LATER_SWITCHES = {"train_bf16": False, "overlap_env": False, "shared_encoder": F
 
 
 def _command_config(saved: dict) -> dict:
-    """The config of the run scripts/sac_comparison.sh starts (EXTRA="--no-bf16 --no-overlap-env" PRESET=state)."""
+    """The config of the trial docs/results.md's sweep starts (--preset state --no-bf16 --no-overlap-env)."""
     parser = argparse.ArgumentParser()
     add_subcommands(parser.add_subparsers(dest="command"))
     args = parser.parse_args([
-        "train-policy", "--task", saved["task"], "--reward", saved["reward"], "--seed", str(saved["seed"]),
-        "--steps", "50000", "--preset", "state", "--no-bf16", "--no-overlap-env", "--threads", "1",
-        "--out", saved["out"]])
-    return apply_overrides(RLConfig.preset(args.preset), overrides_from_args(args, RLConfig, skip=RL_SKIP)).to_dict()
+        "sweep", "--tasks", saved["task"], "--rewards", saved["reward"], "--seeds", str(saved["seed"]),
+        "--steps", "50000", "--preset", "state", "--no-bf16", "--no-overlap-env", "--out", "outputs/rl"])
+    (config,) = configs_from_args(args)
+    return config.to_dict()
 
 
 def test_every_committed_run_is_counted():
@@ -44,6 +43,10 @@ def test_the_documented_command_makes_the_committed_runs_config(path):
     # The checkpoint a DREM run read is pinned by its sha256 below: the runs named the file by a local path.
     saved.pop("reward_checkpoint")
     made.pop("reward_checkpoint")
+    # Where a run lies is no setting of it (a resume may name another --out): the committed runs were made in
+    # scratch folders, some of other names, and copied here; the sweep puts each in <out>/<task>/<reward>/seed<S>.
+    assert made.pop("out") == f"outputs/rl/{saved['task']}/{saved['reward']}/seed{saved['seed']}"
+    saved.pop("out")
     assert made == saved
     record = path.parent / "reward_checkpoint.json"
     if record.exists():

@@ -1,0 +1,143 @@
+"""sweep: the grid's run folders and flags, bad names before Ray, and a tiny sweep on local Ray killed and resumed."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from drem_maniskill.cli import main
+from drem_maniskill.rl.config import RLConfig
+from drem_maniskill.rl.sweep import plan_trials, run_sweep
+from drem_maniskill.rl.train_policy import read_eval_csv
+
+# A 200-step light run: one held-out episode at steps 0, 100 and 200, gradient steps only after 150.
+TINY = ["--steps", "200", "--eval-every", "100", "--eval-episodes", "1", "--learning-starts", "150",
+        "--batch-size", "16"]
+
+
+def _ray_started() -> bool:
+    ray = sys.modules.get("ray")
+    return ray is not None and ray.is_initialized()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--tasks", "PegInHoel-v1", "--rewards", "sparse"], "unknown task id 'PegInHoel-v1'"),
+    (["--tasks", "PegInHole-v1", "--rewards", "sparse", "spars"], "unknown reward 'spars'"),
+])
+def test_an_unknown_task_or_reward_fails_before_any_trial(tmp_path, capsys, argv, message):
+    out = tmp_path / "sweep"
+    assert main(["sweep", *argv, "--seeds", "0", "--out", str(out), *TINY]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() and not _ray_started()
+
+
+def test_an_unknown_preset_fails_before_any_trial(tmp_path):
+    with pytest.raises(ValueError, match="unknown preset 'huge'"):
+        plan_trials(["PegInHole-v1"], ["sparse"], [0], 200, tmp_path, presets=["light", "huge"])
+    assert not _ray_started()
+
+
+def test_every_trial_gets_its_folder_and_the_train_policy_flags(tmp_path):
+    configs = plan_trials(["PegInHole-v1", "USBInsertion-v1"], ["sparse", "drem"], [0, 1, 0], 300, tmp_path,
+                          presets=["state", "light"], overrides=dict(eval_every=50, train_bf16=False))
+    assert len(configs) == 2 * 2 * 2 * 2  # the repeated seed counts once
+    assert {c.out for c in configs} == {str(tmp_path / p / t / r / f"seed{s}") for p in ("state", "light")
+                                        for t in ("PegInHole-v1", "USBInsertion-v1") for r in ("sparse", "drem")
+                                        for s in (0, 1)}
+    assert [(c.preset, c.task, c.seed, c.reward) for c in configs[:3]] == [
+        ("state", "PegInHole-v1", 0, "sparse"), ("state", "PegInHole-v1", 0, "drem"),
+        ("state", "PegInHole-v1", 1, "sparse")]
+    for c in configs:
+        assert (c.steps, c.eval_every, c.train_bf16) == (300, 50, False)
+        assert c.cameras == RLConfig.preset(c.preset).cameras
+    (one,) = plan_trials(["PegInHole-v1"], ["drem"], [2], 300, tmp_path)
+    assert one.out == str(tmp_path / "PegInHole-v1" / "drem" / "seed2") and one.preset == "light"
+
+
+def _finished_run(config: RLConfig, steps: int) -> None:
+    """A run folder as train_policy leaves it at ``steps`` (config, eval.csv, the checkpoint pointer)."""
+    run = config.run_dir
+    (run / "checkpoints" / f"step_{steps}").mkdir(parents=True)
+    (run / "checkpoints" / "latest.json").write_text(json.dumps({"step": steps, "dir": f"step_{steps}"}))
+    config.save(run / "config.json")
+    (run / "eval.csv").write_text(f"steps,success_rate,mean_return,wall_time\n0,0.0,0.0,1.0\n{steps},0.5,1.0,9.0\n")
+
+
+def test_a_finished_grid_is_skipped_without_ray(tmp_path, monkeypatch, capsys):
+    configs = plan_trials(["PegInHole-v1"], ["sparse", "engineered"], [0], 200, tmp_path)
+    for config in configs:
+        _finished_run(config, 200)
+    monkeypatch.setitem(sys.modules, "ray", None)  # any import of ray would fail
+    result = run_sweep(configs, tmp_path)
+    assert [t["status"] for t in result["trials"]] == ["skipped", "skipped"] and result["failed"] == 0
+    assert "skip light PegInHole-v1 sparse seed0: finished, success 0.50 at 200 steps" in capsys.readouterr().out
+
+
+def test_without_ray_the_error_names_the_extra(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(SystemExit, match=r"pip install drem-maniskill\[sweep\]"):
+        main(["sweep", "--tasks", "PegInHole-v1", "--rewards", "sparse", "--seeds", "0", "--out", str(tmp_path),
+              *TINY])
+
+
+def test_a_folder_holding_another_run_stops_the_sweep_before_ray(tmp_path, monkeypatch):
+    (config,) = plan_trials(["PegInHole-v1"], ["sparse"], [0], 200, tmp_path)
+    _finished_run(RLConfig.from_dict({**config.to_dict(), "gamma": 0.5}), 100)
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(ValueError, match="holds a run with another config"):
+        run_sweep([config], tmp_path)
+
+
+def _sweep(out: Path) -> list:
+    return [sys.executable, "-m", "drem_maniskill.cli", "sweep", "--tasks", "PegInHole-v1", "--rewards", "sparse",
+            "drem", "--seeds", "0", "--preset", "light", "--out", str(out), *TINY]
+
+
+def _step(run: Path) -> int:
+    latest = run / "checkpoints" / "latest.json"
+    return json.loads(latest.read_text())["step"] if latest.exists() else 0
+
+
+@pytest.mark.slow
+def test_a_sweep_on_local_ray_killed_and_rerun_finishes_every_run(tmp_path):
+    """Two trials on local Ray; the sweep is killed at the first checkpoint, rerun, then rerun once more (a no-op)."""
+    out = tmp_path / "sweep"
+    runs = {reward: out / "PegInHole-v1" / reward / "seed0" for reward in ("sparse", "drem")}
+    with open(tmp_path / "first.log", "w") as log:
+        proc = subprocess.Popen(_sweep(out), stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.time() + 300
+        while proc.poll() is None and time.time() < deadline and not any(_step(r) for r in runs.values()):
+            time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGKILL)  # the sweep, Ray's processes and the trials
+        proc.wait()
+    at_kill = {reward: _step(run) for reward, run in runs.items()}
+    assert any(at_kill.values()), (tmp_path / "first.log").read_text()[-3000:]
+
+    second = subprocess.run(_sweep(out), capture_output=True, text=True, timeout=600)
+    assert second.returncode == 0, second.stdout[-3000:] + second.stderr[-3000:]
+    for reward, run in runs.items():
+        assert [r["steps"] for r in read_eval_csv(run / "eval.csv")] == [0, 100, 200]
+        assert RLConfig.load(run / "config.json").reward == reward
+        if 0 < at_kill[reward] < 200:  # resumed from the checkpoint it had
+            assert f"start light PegInHole-v1 {reward} seed0 (from step {at_kill[reward]}" in second.stdout
+            assert (run / "sb3" / f"from{at_kill[reward]}" / "progress.csv").exists()
+        elif at_kill[reward] == 0:
+            assert f"done light PegInHole-v1 {reward} seed0: success" in second.stdout
+    assert (out / "logs" / "light-PegInHole-v1-drem-seed0.log").exists()
+    assert "failed" not in second.stdout.split("[sweep] summary")[-1].replace("0 failed", "")
+
+    third = subprocess.run(_sweep(out), capture_output=True, text=True, timeout=300)
+    assert third.returncode == 0 and "0 done, 2 skipped, 0 failed" in third.stdout
+    assert "trials on Ray" not in third.stdout
+
+    from drem_maniskill.rl.compare import compare_runs
+
+    rows = compare_runs(list(runs.values()), str(tmp_path / "cmp"))["rows"]
+    assert sorted(row["reward"].split(",")[0] for row in rows) == ["drem", "sparse"]
