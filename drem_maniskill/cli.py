@@ -239,7 +239,7 @@ def _add_build_reward(sub) -> None:
                                             "examine, calibrate; each stage resumes")
     p.add_argument("--task", required=True, help="env id whose recipe (tasks/<task>/recipe.toml) to run")
     p.add_argument("--scale", default="full", choices=["tiny", "demo", "full"],
-                   help="tiny: a few minutes, for tests; demo: about 7 minutes a task; full: the recipe as shipped, "
+                   help="tiny: a few minutes, for tests; demo: about 2 minutes a task; full: the recipe as shipped, "
                         "hours (default: %(default)s)")
     p.add_argument("--out", help="output folder (default: the recipe's, for the scale)")
     p.add_argument("--recipe", help="recipe file instead of the task's own")
