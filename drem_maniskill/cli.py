@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 
@@ -48,18 +47,14 @@ def _cmd_scripted_success(args) -> None:
 
 
 def _sampler_flags() -> tuple:
-    """``SamplerConfig``, its phases' settings by name, and the phase flags named by their flat keys."""
+    """``SamplerConfig`` and the phase flags named by their flat keys."""
     from drem_maniskill.pipeline import SamplerConfig
+    from drem_maniskill.pipeline.tree.phases import PHASES
 
-    entries, aliases = {}, {}
-    if "phases" in {f.name for f in dataclasses.fields(SamplerConfig)}:
-        from drem_maniskill.pipeline.tree.phases import PHASES
-
-        entries = {"phases": {name: phase.config for name, phase in PHASES.items()}}
-        # A phase's flat key that is not <phase>_<field> (e.g. --goal-presses) keeps its flag.
-        aliases = {f"phases.{name}.{field}": ["--" + key.replace("_", "-")]
-                   for name, phase in PHASES.items() for key, field in phase.legacy.items()}
-    return SamplerConfig, entries, aliases
+    # A phase's flat key that is not <phase>_<field> (e.g. --goal-presses) keeps its flag.
+    aliases = {f"phases.{name}.{field}": ["--" + key.replace("_", "-")]
+               for name, phase in PHASES.items() for key, field in phase.legacy.items()}
+    return SamplerConfig, aliases
 
 
 def _cmd_sample(args) -> None:
@@ -67,9 +62,8 @@ def _cmd_sample(args) -> None:
     from drem_maniskill.pipeline.dataset import tree_report
     from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
 
-    sampler_config, entries, _ = _sampler_flags()
-    overrides = overrides_from_args(args, sampler_config, entries=entries)
-    config = apply_overrides(sampler_config.preset(args.preset), overrides, entries=entries)
+    sampler_config, _ = _sampler_flags()
+    config = apply_overrides(sampler_config.preset(args.preset), overrides_from_args(args, sampler_config))
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
     print(f"progress tree: {path}")
@@ -202,7 +196,7 @@ def _add_examine(sub) -> None:
 def _add_sample(sub) -> None:
     from drem_maniskill.utils.config_cli import add_dataclass_args
 
-    sampler_config, entries, aliases = _sampler_flags()
+    sampler_config, aliases = _sampler_flags()
     p = sub.add_parser("sample", help="backward sampling: build the task progress tree from an expert trajectory",
                        description="Backward sampling: the task progress tree from an expert trajectory. Every flag "
                                    "but --expert, --out and --preset sets the SamplerConfig field of its name, on "
@@ -212,7 +206,7 @@ def _add_sample(sub) -> None:
                    help="dataset to write (default: %(default)s); resumes from <out>.partial")
     p.add_argument("--preset", default="paper",
                    help=f"sampler preset, one of {', '.join(_presets(sampler_config))} (default: %(default)s)")
-    add_dataclass_args(p, sampler_config, presets=_presets(sampler_config), entries=entries, aliases=aliases)
+    add_dataclass_args(p, sampler_config, presets=_presets(sampler_config), aliases=aliases)
     p.set_defaults(func=_cmd_sample)
 
 

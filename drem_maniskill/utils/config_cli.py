@@ -12,7 +12,7 @@ what was given, and ``apply_overrides`` puts that on top of a preset. Field shap
 * a nested dataclass field ``model``: one flag per inner field, ``--model-image-size``;
 * a dict of dataclasses (e.g. the sampler's ``phases``): ``--phase NAME.FIELD=VALUE`` (the field's name
   without its plural ``s``), repeatable, and ``--NAME-FIELD VALUE`` per entry field; the entries are those of
-  the field's default dict, or those ``entries=`` names.
+  the field's default dict (the sampler's holds every registered phase).
 """
 
 from __future__ import annotations
@@ -133,10 +133,8 @@ def _element_type(hint, default) -> type:
     return str
 
 
-def _entry_types(f: dataclasses.Field, hint, default, entries: Mapping) -> Optional[Dict[str, type]]:
-    """For a dict-of-dataclasses field: entry name -> its dataclass (from ``entries``, else the default's values)."""
-    if f.name in entries:
-        return {name: (t if isinstance(t, type) else type(t)) for name, t in entries[f.name].items()}
+def _entry_types(hint, default) -> Optional[Dict[str, type]]:
+    """For a dict-of-dataclasses field: entry name -> its dataclass, from the field's default dict."""
     if _base(hint) is dict and isinstance(default, dict) and default:
         if all(dataclasses.is_dataclass(v) and not isinstance(v, type) for v in default.values()):
             return {name: type(v) for name, v in default.items()}
@@ -199,17 +197,15 @@ def _option_kwargs(f, hint, default) -> dict:
 
 
 def add_dataclass_args(parser, cls, prefix: str = "", skip: Iterable[str] = (), aliases: Optional[Mapping] = None,
-                       choices: Optional[Mapping] = None, presets: Optional[Mapping[str, Any]] = None,
-                       entries: Optional[Mapping[str, Mapping[str, type]]] = None) -> None:
+                       choices: Optional[Mapping] = None, presets: Optional[Mapping[str, Any]] = None) -> None:
     """Add a ``--field-name`` flag (default None) for every field of dataclass ``cls`` not in ``skip``.
 
     ``prefix`` goes before every flag (``"model-"``); ``aliases`` maps a field (``"model.modalities"`` for a nested
     one, ``"phases.face.depth"`` for an entry's) to extra flags that keep working; ``choices`` a field to its allowed
     values; ``presets`` a preset name to its config instance (the help shows each preset's default where they
-    differ); ``entries`` a dict-of-dataclasses field to ``{entry name: dataclass}`` when its default dict is empty.
-    An entry's fields get ``--<entry>-<field>`` flags too.
+    differ). An entry of a dict-of-dataclasses field gets ``--<entry>-<field>`` flags for its fields too.
     """
-    spec = _Spec(frozenset(skip), dict(aliases or {}), dict(choices or {}), dict(entries or {}))
+    spec = _Spec(frozenset(skip), dict(aliases or {}), dict(choices or {}))
     _add(parser, cls, prefix, "", spec, dict(presets or {"": default_instance(cls)}))
 
 
@@ -220,7 +216,6 @@ class _Spec:
     skip: frozenset
     aliases: dict
     choices: dict
-    entries: dict
 
 
 def _add(parser, cls, prefix: str, outer: str, spec: _Spec, presets: dict) -> None:
@@ -236,7 +231,7 @@ def _add(parser, cls, prefix: str, outer: str, spec: _Spec, presets: dict) -> No
         if dataclasses.is_dataclass(hint):
             _add(parser, hint, f"{prefix}{f.name.replace('_', '-')}-", key, spec, values)
             continue
-        types = _entry_types(f, hint, default, spec.entries)
+        types = _entry_types(hint, default)
         if types is not None:
             flags[0] = _flag(prefix, _singular(f.name))
             parser.add_argument(*flags, dest=key, action="append", metavar="NAME.FIELD=VALUE",
@@ -273,17 +268,16 @@ def _entries_help(doc: str, types: Mapping[str, type], flag: str) -> str:
             f"does. Entries: {', '.join(types)}").replace("%", "%%")
 
 
-def overrides_from_args(args: argparse.Namespace, cls, prefix: str = "", skip: Iterable[str] = (),
-                        entries: Optional[Mapping[str, Mapping[str, type]]] = None) -> dict:
+def overrides_from_args(args: argparse.Namespace, cls, prefix: str = "", skip: Iterable[str] = ()) -> dict:
     """``{field: value}`` for the flags of ``add_dataclass_args(parser, cls, ...)`` given on the command line.
 
     A nested dataclass field gives ``{field: {inner: value}}``, a dict of dataclasses
     ``{field: {entry: {inner: value}}}``; ``apply_overrides`` merges either into a config.
     """
-    return _overrides(vars(args), cls, "", frozenset(skip), dict(entries or {}))
+    return _overrides(vars(args), cls, "", frozenset(skip))
 
 
-def _overrides(values: dict, cls, outer: str, skip, entries: dict) -> dict:
+def _overrides(values: dict, cls, outer: str, skip) -> dict:
     out = {}
     for f in config_fields(cls):
         key = _dest(outer, f.name)
@@ -291,11 +285,11 @@ def _overrides(values: dict, cls, outer: str, skip, entries: dict) -> dict:
             continue
         hint = field_type(cls, f)
         if dataclasses.is_dataclass(hint):
-            inner = _overrides(values, hint, key, skip, entries)
+            inner = _overrides(values, hint, key, skip)
             if inner:
                 out[f.name] = inner
             continue
-        types = _entry_types(f, hint, field_default(cls, f), entries)
+        types = _entry_types(hint, field_default(cls, f))
         if types is not None:
             given = _entry_overrides(values, key, types)
             if given:
@@ -366,13 +360,8 @@ def convert(text: str, hint, default=None, context: str = "") -> Any:
         raise ValueError(f"{context or text}: cannot read {text!r} as {getattr(base, '__name__', base)} ({err})")
 
 
-def apply_overrides(config, overrides: Mapping[str, Any], entries: Optional[Mapping[str, Mapping[str, type]]] = None):
-    """A copy of dataclass ``config`` with ``overrides`` (as ``overrides_from_args`` returns them) merged in.
-
-    An entry of a dict-of-dataclasses field that ``config`` lacks is made from its type in ``entries`` (or in the
-    field's current values) with the given fields.
-    """
-    entries = dict(entries or {})
+def apply_overrides(config, overrides: Mapping[str, Any]):
+    """A copy of dataclass ``config`` with ``overrides`` (as ``overrides_from_args`` returns them) merged in."""
     changes = {}
     fields = {f.name: f for f in config_fields(type(config))}
     for name, value in overrides.items():
@@ -382,17 +371,14 @@ def apply_overrides(config, overrides: Mapping[str, Any], entries: Optional[Mapp
         if dataclasses.is_dataclass(current) and isinstance(value, Mapping):
             value = apply_overrides(current, value)
         else:
-            types = _entry_types(fields[name], dict, current, entries)
-            if types is not None and isinstance(value, Mapping):
-                value = {**current, **{k: _entry(current, types, k, v) for k, v in value.items()}}
+            if _entry_types(dict, current) is not None and isinstance(value, Mapping):
+                value = {**current, **{k: _entry(current, k, v) for k, v in value.items()}}
         changes[name] = value
     return dataclasses.replace(config, **changes)
 
 
-def _entry(current: Mapping, types: Mapping[str, type], name: str, values: Mapping):
-    """Entry ``name`` of a dict-of-dataclasses field with ``values`` set: from ``current``, else made anew."""
-    if name in current:
-        return apply_overrides(current[name], values)
-    if name not in types:
-        raise ValueError(f"unknown entry {name!r}; choose one of {list(types)}")
-    return types[name](**values)
+def _entry(current: Mapping, name: str, values: Mapping):
+    """Entry ``name`` of a dict-of-dataclasses field with ``values`` set."""
+    if name not in current:
+        raise ValueError(f"unknown entry {name!r}; choose one of {list(current)}")
+    return apply_overrides(current[name], values)
