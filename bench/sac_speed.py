@@ -11,13 +11,14 @@ ratio: ``train_freq``, ``gradient_steps``). The reward's cost is measured two wa
 
 ``x_env`` is the run's wall time over the plain env's own stepping (``gym.make(task, obs_mode="rgb",
 reward_mode="none")``, random actions, measured in the same run): the targets are 2x for the
-``state`` preset with the drem reward and 3x for ``light``. ``grad_ms`` is SAC's gradient step
-(SB3's ``train``), per env step. A run with ``overlap_env`` (``overlapped``) steps its env in a child
-process while the gradient step runs, as ``train-policy`` does: its reward and step-difference columns
+``state`` preset with the drem reward and 3x for ``light`` and ``image`` (every reward). ``grad_ms`` is
+SAC's gradient step (SB3's ``train``), per env step. A run with ``overlap_env`` (``overlapped``) steps its
+env in a child process while the gradient step runs, as ``train-policy`` does: its reward and step-difference columns
 are measured in the child.
 
     .venv/bin/python bench/sac_speed.py                          # light preset, every reward
     .venv/bin/python bench/sac_speed.py --presets state light --rewards drem  # the two targeted ratios
+    .venv/bin/python bench/sac_speed.py --presets image     # the image comparison's preset, every reward
     .venv/bin/python bench/sac_speed.py --presets light paper --paper-steps 20
     .venv/bin/python bench/sac_speed.py --rewards drem --encoders separate shared   # rl.sac's shared encoder
     .venv/bin/python bench/sac_speed.py --presets state light --rewards drem \
@@ -40,7 +41,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import torch  # noqa: E402
 
-from drem_maniskill.rl.config import RLConfig  # noqa: E402
+from drem_maniskill.rl.config import PRESETS, RLConfig  # noqa: E402
 from drem_maniskill.rl.algos import algo_spec  # noqa: E402
 from drem_maniskill.rl.rewards import REWARDS  # noqa: E402
 from drem_maniskill.rl.run_env import make_vec_env  # noqa: E402
@@ -171,10 +172,10 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
 def main(argv=None) -> int:
     """Run the benchmark; print the table and write JSON."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--presets", nargs="+", default=["light"], choices=["state", "light", "paper"])
+    p.add_argument("--presets", nargs="+", default=["light"], choices=list(PRESETS))
     p.add_argument("--rewards", nargs="+", default=list(REWARDS))
     p.add_argument("--task", default="PegInHole-v1")
-    p.add_argument("--steps", type=int, default=300, help="timed SAC steps per reward, state and light presets")
+    p.add_argument("--steps", type=int, default=300, help="timed SAC steps per reward, CPU presets")
     p.add_argument("--paper-steps", type=int, default=20, help="timed SAC steps per reward, paper preset")
     p.add_argument("--warmup", type=int, default=256, help="random steps first (also the first batches)")
     p.add_argument("--env-steps", type=int, default=100, help="random env steps for the step-difference measure")

@@ -69,8 +69,9 @@ def add_subcommands(sub) -> None:
                        description="SAC on a task with a reward chosen by name; rerun to resume. Every flag but "
                                    "--preset sets the RLConfig field of its name, on top of the preset.")
     p.add_argument("--preset", default="light",
-                   help=f"one of {', '.join(PRESETS)}: state: no images, for reward studies; light: images on this "
-                        "CPU; paper: the paper's observations, GPU (default: %(default)s)")
+                   help=f"one of {', '.join(PRESETS)}: state: no images, for reward studies; light: images and F/T on "
+                        "this CPU; image: the paper's inputs on this CPU (32 px, F/T for drem only); paper: the "
+                        "paper's inputs at 128 px, GPU (default: %(default)s)")
     add_dataclass_args(p, RLConfig, skip=RL_SKIP, aliases=RL_ALIASES, choices=_rl_choices(),
                        presets={name: RLConfig.preset(name) for name in PRESETS})
     p.set_defaults(func=_cmd_train_policy)

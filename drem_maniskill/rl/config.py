@@ -10,7 +10,7 @@ from typing import Optional
 
 from drem_maniskill.envs import is_insertion_task
 
-PRESETS = ("state", "light", "paper")
+PRESETS = ("state", "light", "image", "paper")
 # Episodes end at success, vector inputs normalised, half the action range: the setting where SAC learns the peg
 # with engineered in all three seeds (docs/rl.md); the state and light presets.
 LEARNABLE = dict(terminate_on_success=True, obs_norm=("state", "ft"), action_scale=0.5)
@@ -152,7 +152,7 @@ class RLConfig:
     # The field ``preset`` records the preset's name in a run's config.json; this method makes one.
     @classmethod
     def preset(cls, name: str, **overrides) -> "RLConfig":  # noqa: F811
-        """The ``state`` (reward studies), ``light`` (images, CPU) or ``paper`` (images, GPU) config, with overrides."""
+        """The ``state`` (reward studies), ``light`` or ``image`` (CPU images) or ``paper`` config, with overrides."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose one of {list(PRESETS)}")
         base = dict(preset=name)
@@ -174,6 +174,10 @@ class RLConfig:
             # Images on this CPU: the state preset's learnability settings, the env overlapped with the gradient
             # step (a quarter of the updates would be as fast, at a cost to learning).
             base.update(**LEARNABLE, overlap_env=True)
+        elif name == "image":
+            # The paper's inputs on this CPU: both cameras (32 px) and proprioception for every reward, the F/T
+            # history for DREM's policy only (Section IV-D), never the socket's pose; light's learning settings.
+            base.update(**LEARNABLE, overlap_env=True, policy_ft=None, steps=50_000, eval_every=2_500)
         elif name == "paper":
             # The paper: images of both cameras for every policy, F/T too for DREM's (Section IV-D);
             # a policy CNN like the reward encoder's (6 stride-2 layers at 128 px); 150k steps.

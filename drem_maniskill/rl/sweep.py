@@ -77,14 +77,15 @@ def check_grid(tasks: Sequence[str], rewards: Sequence[str], presets: Sequence[s
 
 def plan_trials(tasks: Sequence[str], rewards: Sequence[str], seeds: Sequence[int], steps: int, out,
                 presets: Sequence[str] = ("light",), overrides: Optional[dict] = None) -> list:
-    """Every trial's RLConfig, checked before any runs; by preset, task, seed, reward (every reward's seed 0 first)."""
+    """Every trial's RLConfig, checked before any runs; by preset, seed, task, reward (every task's and reward's seed 0
+    first, so a grid cut short still compares every reward on every task)."""
     tasks, rewards, seeds, presets = _unique(tasks), _unique(rewards), _unique(int(s) for s in seeds), _unique(presets)
     check_grid(tasks, rewards, presets)
     if int(steps) <= 0:
         raise ValueError(f"--steps must be positive, got {steps}")
     nest = len(presets) > 1
     return [trial_config(preset, task, reward, seed, steps, out, overrides, nest)
-            for preset in presets for task in tasks for seed in seeds for reward in rewards]
+            for preset in presets for seed in seeds for task in tasks for reward in rewards]
 
 
 def configs_from_args(args) -> list:
@@ -101,14 +102,24 @@ def label(config: RLConfig) -> str:
 
 
 def run_progress(config: RLConfig) -> tuple:
-    """``(steps done, last eval row or None)``: the lower of the last checkpoint's step and eval.csv's last row."""
-    from drem_maniskill.rl.train_policy import read_eval_csv
+    """``(steps done, last eval row or None)``: the lower of the last checkpoint's step and eval.csv's last row.
+
+    A run kept without its checkpoints (its ``config.json`` and ``eval.csv``, as results are committed) counts
+    as done to its last evaluation when it reached the config's steps with the same settings, else as not begun.
+    """
+    from drem_maniskill.rl.train_policy import _check_resumable, read_eval_csv
 
     latest = config.run_dir / "checkpoints" / "latest.json"
     rows = read_eval_csv(config.run_dir / "eval.csv")
-    if not latest.exists() or not rows:
+    if not rows:
         return 0, None
-    return min(int(json.loads(latest.read_text())["step"]), rows[-1]["steps"]), rows[-1]
+    if latest.exists():
+        return min(int(json.loads(latest.read_text())["step"]), rows[-1]["steps"]), rows[-1]
+    saved = config.run_dir / "config.json"
+    if rows[-1]["steps"] < config.steps or not saved.exists():
+        return 0, None
+    _check_resumable(RLConfig.load(saved), config)
+    return rows[-1]["steps"], rows[-1]
 
 
 def _success(row: Optional[dict]) -> str:
@@ -139,6 +150,16 @@ def import_ray():
     return ray
 
 
+def report_start(queue, item) -> None:
+    """Put ``item`` on the sweep's start queue without waiting for it.
+
+    A task blocked in ``ray.get`` (as ``Queue.put`` is) lends its CPU back to Ray, which then starts one
+    trial more than the cores allow; a call that is not waited on keeps the trial's share.
+    """
+    if queue is not None:
+        queue.actor.put_nowait.remote(item)
+
+
 def run_trial(config: dict, log: str, cwd: str, queue=None) -> dict:
     """One trial in a Ray worker: ``train_policy`` with its output in ``log``; returns steps and last evaluation."""
     import traceback
@@ -147,8 +168,7 @@ def run_trial(config: dict, log: str, cwd: str, queue=None) -> dict:
         os.chdir(cwd)  # relative --out and checkpoint paths mean what they meant to the sweep's command
     config = RLConfig.from_dict(config)
     done, _ = run_progress(config)
-    if queue is not None:
-        queue.put((label(config), done, os.uname().nodename))
+    report_start(queue, (label(config), done, os.uname().nodename))
     Path(log).parent.mkdir(parents=True, exist_ok=True)
     sys.stdout.flush()
     sys.stderr.flush()

@@ -13,6 +13,37 @@ def test_paper_preset_gives_ft_only_to_drem():
     assert RLConfig.preset("light", reward="sparse").uses_ft  # light: the same obs for every reward
 
 
+COMPARED = ("sparse", "engineered", "vice", "drem-image", "drem")
+
+
+@pytest.mark.parametrize("reward", ["sparse", "drem-image", "drem"])
+def test_image_preset_gives_ft_to_drem_alone_and_the_socket_pose_to_none(reward):
+    """The image comparison's inputs (the paper's): both cameras and proprioception; F/T for DREM's policy only."""
+    import torch
+
+    from drem_maniskill.rl.run_env import make_env
+
+    configs = {r: RLConfig.preset("image", reward=r) for r in COMPARED}
+    assert [c.uses_ft for c in configs.values()] == [False, False, False, False, True]
+    assert all(c.uses_images and c.image_size == 32 and not c.policy_privileged for c in configs.values())
+    assert {(c.steps, c.eval_every) for c in configs.values()} == {(50_000, 2_500)}
+    env, _ = make_env(configs[reward], for_eval=True)
+    try:
+        u = env.unwrapped
+        obs, _ = env.reset(seed=5)
+        cameras = {"fixed_camera", "wrist_camera"}
+        assert set(obs) == cameras | {"state"} | ({"ft"} if reward == "drem" else set())
+        assert all(obs[c].shape == (1, 3, 32, 32) and obs[c].dtype == torch.uint8 for c in cameras)
+        expected = torch.cat([u.agent.robot.get_qpos(), u.agent.tcp.pose.raw_pose], dim=1)
+        torch.testing.assert_close(obs["state"], expected)  # qpos and the TCP pose, nothing after them
+        socket = u.socket.pose.raw_pose[0]
+        for part in (socket[:3], socket[3:]):  # neither the socket's position nor its orientation is in there
+            windows = obs["state"][0].unfold(0, len(part), 1)
+            assert not torch.isclose(windows, part, atol=1e-4).all(dim=1).any()
+    finally:
+        env.close()
+
+
 def test_a_plain_config_is_the_light_preset_and_saves(tmp_path):
     """The classmethod ``preset`` shares its name with a field: a plain RLConfig() still gets a string there."""
     config = RLConfig()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -14,7 +15,7 @@ import pytest
 
 from drem_maniskill.cli import main
 from drem_maniskill.rl.config import RLConfig
-from drem_maniskill.rl.sweep import plan_trials, run_sweep
+from drem_maniskill.rl.sweep import plan_trials, run_sweep, split_finished
 from drem_maniskill.rl.train_policy import read_eval_csv
 
 # A 200-step light run: one held-out episode at steps 0, 100 and 200, gradient steps only after 150.
@@ -51,8 +52,10 @@ def test_every_trial_gets_its_folder_and_the_train_policy_flags(tmp_path):
     assert {c.out for c in configs} == {str(tmp_path / p / t / r / f"seed{s}") for p in ("state", "light")
                                         for t in ("PegInHole-v1", "USBInsertion-v1") for r in ("sparse", "drem")
                                         for s in (0, 1)}
-    assert [(c.preset, c.task, c.seed, c.reward) for c in configs[:3]] == [
+    # Seed 0 of every task and reward first: a grid cut short still compares them all.
+    assert [(c.preset, c.task, c.seed, c.reward) for c in configs[:5]] == [
         ("state", "PegInHole-v1", 0, "sparse"), ("state", "PegInHole-v1", 0, "drem"),
+        ("state", "USBInsertion-v1", 0, "sparse"), ("state", "USBInsertion-v1", 0, "drem"),
         ("state", "PegInHole-v1", 1, "sparse")]
     for c in configs:
         assert (c.steps, c.eval_every, c.train_bf16) == (300, 50, False)
@@ -78,6 +81,73 @@ def test_a_finished_grid_is_skipped_without_ray(tmp_path, monkeypatch, capsys):
     result = run_sweep(configs, tmp_path)
     assert [t["status"] for t in result["trials"]] == ["skipped", "skipped"] and result["failed"] == 0
     assert "skip light PegInHole-v1 sparse seed0: finished, success 0.50 at 200 steps" in capsys.readouterr().out
+
+
+def test_a_finished_run_kept_without_its_checkpoints_is_skipped(tmp_path, monkeypatch):
+    """Committed results keep config.json and eval.csv only: a sweep on them skips the finished runs."""
+    short, done, other = plan_trials(["PegInHole-v1"], ["sparse", "engineered", "drem"], [0], 200, tmp_path)
+    for config, steps in ((short, 100), (done, 200), (other, 200)):
+        _finished_run(config, steps)
+        shutil.rmtree(config.run_dir / "checkpoints")
+    RLConfig.from_dict({**other.to_dict(), "gamma": 0.5}).save(other.run_dir / "config.json")
+    monkeypatch.setitem(sys.modules, "ray", None)
+    todo, finished = split_finished([short, done])
+    assert todo == [short] and [t["trial"] for t in finished] == ["light PegInHole-v1 engineered seed0"]
+    with pytest.raises(ValueError, match="holds a run with another config"):
+        split_finished([other])
+
+
+@pytest.mark.slow
+def test_trials_keep_to_their_cpu_share_while_reporting_their_start(tmp_path):
+    """At most cores / cpus-per-trial trials at once: the start report must not lend a trial's CPU back to Ray."""
+    ray = pytest.importorskip("ray")
+    from ray.util.queue import Queue
+
+    from drem_maniskill.rl.sweep import report_start
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        queue = Queue(actor_options={"num_cpus": 0})
+
+        @ray.remote(num_cpus=1, max_calls=1)
+        def trial(i):
+            import torch  # a fresh worker per trial, slow to start as a real one: the queue's actor is not up yet
+
+            t0 = time.time()
+            report_start(queue, i)
+            x = torch.randn(300, 300)
+            while time.time() - t0 < 4:  # busy, as a trial is
+                x = x @ x
+                x = x / x.norm()
+            return t0, time.time()
+
+        spans = ray.get([trial.remote(i) for i in range(5)])
+        reported = sorted(queue.get_nowait_batch(queue.qsize()))
+    finally:
+        ray.shutdown()
+    assert reported == list(range(5))
+    most = max(sum(a <= t < b for a, b in spans) for t, _ in spans)
+    assert most == 2, spans
+
+
+@pytest.mark.slow
+def test_the_start_report_never_waits_on_the_queue(tmp_path):
+    """Waiting (``ray.get``) is what lends a trial's CPU back: a report to a queue that cannot take it returns."""
+    ray = pytest.importorskip("ray")
+    from ray.util.queue import Queue
+
+    from drem_maniskill.rl.sweep import report_start
+
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        queue = Queue(maxsize=1, actor_options={"num_cpus": 0})
+        queue.put("first")  # full: a waiting put would never return
+        t0 = time.time()
+        report_start(queue, "second")
+        assert time.time() - t0 < 5
+        assert queue.get_nowait() == "first"
+    finally:
+        ray.shutdown()
 
 
 def test_without_ray_the_error_names_the_extra(tmp_path, monkeypatch):
