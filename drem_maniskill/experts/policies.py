@@ -3,7 +3,7 @@
 On our insertion tasks: ``expert``, ``direct_success``, ``align_success``, ``search_fail``,
 ``random`` (``experts.scripted``). On ManiSkill's own tasks: ``random`` everywhere, and
 ``expert``, ``direct_success`` and ``noisy_expert`` where a stock expert exists
-(``experts.stock``: PegInsertionSide-v1, PlugCharger-v1).
+(``experts.stock``: PegInsertionSide-v1, PlugCharger-v1, PushCube-v1, StackCube-v1).
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ def get_policy(name: str, env, seed: int = 0) -> Callable:
     """A batched scripted policy ``policy(obs) -> action [num_envs, action_dim]`` for ``env``.
 
     On ManiSkill's own tasks ``random`` (uniform random actions) exists everywhere, and ``expert`` and
-    ``noisy_expert`` on PegInsertionSide-v1 and PlugCharger-v1 (``drem_maniskill.experts.stock``,
-    ``pd_ee_delta_pose``).
+    ``noisy_expert`` on PegInsertionSide-v1, PlugCharger-v1, PushCube-v1 and StackCube-v1
+    (``drem_maniskill.experts.stock``, ``pd_ee_delta_pose``).
     """
     if not isinstance(env.unwrapped, InsertionEnv):
         if name == "random":

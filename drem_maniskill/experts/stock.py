@@ -1,4 +1,4 @@
-"""Scripted experts for ManiSkill's own PegInsertionSide-v1 and PlugCharger-v1 (no motion planner).
+"""Scripted experts for ManiSkill's PegInsertionSide-v1, PlugCharger-v1, PushCube-v1, StackCube-v1 (no planner).
 
 The experts follow the phases of ManiSkill's motion-planning solutions
 (``mani_skill/examples/motionplanning/panda/solutions/``): reach above the grasp pose, descend,
@@ -356,9 +356,14 @@ class PlugChargerExpert(_StockExpert):
         return self.dispatch(targets)
 
 
+# The tabletop experts build on the base above, so their module is imported only once it exists.
+from drem_maniskill.experts.stock_tabletop import PushCubeExpert, StackCubeExpert  # noqa: E402
+
 STOCK_EXPERTS: dict[str, type[_StockExpert]] = {
     "PegInsertionSide-v1": PegInsertionSideExpert,
     "PlugCharger-v1": PlugChargerExpert,
+    "PushCube-v1": PushCubeExpert,
+    "StackCube-v1": StackCubeExpert,
 }
 
 
