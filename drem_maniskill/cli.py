@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from drem_maniskill.utils.cli import run_command
 
@@ -240,6 +241,29 @@ def _add_build_reward(sub) -> None:
     p.set_defaults(func=_cmd_build_reward)
 
 
+def _cmd_check_reward(args) -> None:
+    from drem_maniskill.pipeline.check_reward import CheckConfig, check_reward, summary_lines
+    from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
+
+    report = check_reward(apply_overrides(CheckConfig(), overrides_from_args(args, CheckConfig)))
+    print("\n".join(summary_lines(report)))
+    print(f"report: {Path(report['sac']['run_dir']).parent / 'report.json'}")
+
+
+def _add_check_reward(sub) -> None:
+    from drem_maniskill.pipeline.check_reward import CheckConfig
+    from drem_maniskill.utils.config_cli import add_dataclass_args
+
+    p = sub.add_parser("check-reward", help="does a reward pay for the wrong thing? a short SAC run, then where its "
+                                            "failures end and what the reward pays there",
+                       description="A short state-preset SAC run on a DREM reward; its policy and the scripted "
+                                   "expert on held-out seeds; return against success, where failed episodes end "
+                                   "(each moving object's distance from the expert's end) and what the reward pays "
+                                   "there. Rerun to resume. Every flag sets the CheckConfig field of its name.")
+    add_dataclass_args(p, CheckConfig)
+    p.set_defaults(func=_cmd_check_reward)
+
+
 def _add_calibrate_support(sub) -> None:
     p = sub.add_parser("calibrate-support", help="tree nodes' reconstruction errors for the drem-guarded reward")
     p.add_argument("--checkpoint", required=True, help="a DREM checkpoint (drem.pt)")
@@ -264,7 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="drem-maniskill", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (_add_demo, _add_record_expert, _add_scripted_success, _add_examine, _add_sample, _add_train_reward,
-                _add_build_reward, _add_calibrate_support):
+                _add_build_reward, _add_check_reward, _add_calibrate_support):
         add(sub)
     add_subcommands(sub)  # train-policy, sweep, compare (drem_maniskill/rl, docs/rl.md)
     _add_run_script(sub)

@@ -84,6 +84,7 @@ def _configs() -> list:
     """The config sections: the sampler and its phases, training, the model, the policy run."""
     from drem_maniskill.drem.model import ModelConfig
     from drem_maniskill.pipeline import SamplerConfig
+    from drem_maniskill.pipeline.policy_rounds import RoundsConfig
     from drem_maniskill.pipeline.train_reward import TrainConfig
     from drem_maniskill.rl.config import RLConfig
 
@@ -96,6 +97,8 @@ def _configs() -> list:
                                     f"Set with `--phase {name}.FIELD=VALUE` or `--{name.replace('_', '-')}-FIELD`.")
     lines += config_section("TrainConfig", TrainConfig, "Reward-model training (`drem-maniskill train-reward`).")
     lines += config_section("ModelConfig", ModelConfig, "`TrainConfig.model`: flags `--model-FIELD`.")
+    lines += config_section("RoundsConfig", RoundsConfig, "Policy rounds of hard negatives: a recipe's `[rounds]` "
+                                                          "(`build-reward`).")
     lines += config_section("RLConfig", RLConfig, "Policy learning (`drem-maniskill train-policy`); the presets "
                                                   "change several defaults (see the command's flags).")
     return lines

@@ -137,7 +137,7 @@ def test_train_policy_flags_reach_the_rl_config(monkeypatch, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["sample", "--expert", "x.h5", "--preset", "huge"], "unknown sampler preset 'huge'; choose one of"),
     (["train-reward", "--dataset", "t.h5", "--preset", "huge"], "unknown training preset 'huge'; choose one of"),
-    (["train-policy", "--preset", "huge"], "unknown preset 'huge'; choose one of ['state', 'light', 'paper']"),
+    (["train-policy", "--preset", "huge"], "unknown preset 'huge'; choose one of ['state', 'light', 'image', 'paper']"),
     (["sample", "--expert", "x.h5", "--phase", "face.depth=many"], "cannot read 'many' as int"),
     (["sample", "--expert", "x.h5", "--phase", "nowhere.depth=1"], "unknown name 'nowhere'; choose one of"),
     (["sample", "--expert", "x.h5", "--phase", "face=1"], "--phase takes NAME.FIELD=VALUE"),

@@ -6,7 +6,8 @@ interrupted build is finished by running the same command again:
 
 1. demo: the committed demo the recipe names, else ``record-expert`` -> ``expert/expert.h5``;
 2. sample: backward sampling -> ``tree.h5``;
-3. train: the reward -> ``reward/drem.pt``; examine it on held-out seeds -> ``examination/``;
+3. train: the reward -> ``reward/drem.pt``; where the recipe asks for policy rounds, they fine-tune it on hard
+   negatives -> ``rounds/drem.pt`` (``rounds/round_<k>/``); examine the last -> ``examination/``;
 4. the image-only twin, where the recipe asks for it -> ``reward_image/``, ``examination_image/``;
 5. calibrate: the support guard's thresholds -> ``support.json``;
 6. publish: the products copied under the names ``rewards/<id>/`` uses (``drem.pt``, ``quality.json``, ...).
@@ -36,12 +37,15 @@ PUBLISHED = {
     "examination_image/examination.png": "examination_image.png",
     "support.json": "support.json",
 }
-_TRAINED = ("reward", "examination", "reward_image", "examination_image", "support.json")
+# The policy rounds' checkpoints, published in place of the paper's where a recipe runs them.
+ROUNDS_PUBLISHED = {"reward/drem.pt": "rounds/drem.pt", "reward_image/drem.pt": "rounds_image/drem.pt"}
+_TRAINED = ("reward", "rounds", "examination", "reward_image", "rounds_image", "examination_image", "support.json")
 # Recipe section -> the work-folder outputs made from it (the stages after it read those outputs).
 MADE_FROM = {
     "demo": ("expert", "tree.h5", "tree.h5.partial", *_TRAINED),
     "sampler": ("tree.h5", "tree.h5.partial", *_TRAINED),
     "train": _TRAINED,
+    "rounds": ("rounds", "rounds_image", "examination", "examination_image", "support.json"),
     "image_twin": ("reward_image", "examination_image"),
     "examine": ("examination", "examination_image"),
     "calibrate": ("support.json",),
@@ -129,9 +133,23 @@ def model_stages(r: Recipe, tree: Path, work: Path, suffix: str, modalities) -> 
     config = r.train_config(modalities=modalities or dataset_modalities(str(tree)))
     checkpoint = stage(r.task, f"train{suffix}", work / f"reward{suffix}" / "drem.pt",
                        lambda p: train_reward(str(tree), str(p.parent), config))
+    rounds = r.rounds_config()
+    if rounds.rounds > 0:
+        checkpoint = stage(r.task, f"rounds{suffix}", work / f"rounds{suffix}" / "drem.pt",
+                           lambda p: _rounds(r.task, tree, checkpoint, config, rounds, p))
     stage(r.task, f"examine{suffix}", work / f"examination{suffix}" / "quality.json",
           lambda p: examine(r.task, str(checkpoint), seeds=r.exam_seeds(), out_dir=str(p.parent)))
     return checkpoint
+
+
+def _rounds(task: str, tree: Path, checkpoint: Path, config, rounds, out: Path) -> None:
+    """The policy rounds from ``checkpoint``; their last checkpoint copied to ``out`` (atomically)."""
+    from drem_maniskill.pipeline.policy_rounds import run_rounds
+
+    last = run_rounds(task, str(tree), checkpoint, config, rounds, out.parent)
+    tmp = out.with_name(out.name + ".tmp")
+    shutil.copyfile(last, tmp)
+    tmp.replace(out)
 
 
 def stage(task: str, name: str, output: Path, run: Callable[[Path], object]) -> Path:
@@ -154,6 +172,8 @@ def publish(task: str, work: Path, dest: Path) -> None:
     dest.mkdir(parents=True, exist_ok=True)
     for src_name, dest_name in PUBLISHED.items():
         src, target = work / src_name, dest / dest_name
+        if src_name in ROUNDS_PUBLISHED and (work / ROUNDS_PUBLISHED[src_name]).is_file():
+            src = work / ROUNDS_PUBLISHED[src_name]
         if not src.is_file() or src.resolve() == target.resolve():
             continue
         if target.is_file() and filecmp.cmp(src, target, shallow=False):
@@ -183,7 +203,7 @@ def check_same_recipe(path: Path, r: Recipe) -> None:
 
 def _outcome(recipe: dict, section: str):
     """A recipe section without the settings that change how fast a stage runs, not what it makes."""
-    value = recipe.get(section)
+    value = recipe.get(section) or {}  # a section the recorded recipe predates took its defaults
     if section in MACHINE_FIELDS and isinstance(value, dict):
         return {k: v for k, v in value.items() if k not in MACHINE_FIELDS[section]}
     return value

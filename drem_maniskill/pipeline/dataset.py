@@ -68,7 +68,31 @@ class TreeDataset:
                 for which in ("first", "last")
             }
         self.goal_index = int(torch.nonzero(self.depth == 0)[0])
+        self.tree_nodes = len(self.depth)
+        self._index_depths()
+
+    def _index_depths(self) -> None:
         self.by_depth = {int(d): torch.nonzero(self.depth == d).flatten() for d in torch.unique(self.depth)}
+
+    def add_negatives(self, paths, config: ModelConfig) -> int:
+        """Append the hard negatives of ``paths`` (``pipeline.policy_rounds``' files) as nodes at their labelled
+        depths; returns how many. Their cameras must be the tree's."""
+        added = 0
+        for path in paths:
+            with h5py.File(path, "r") as f:
+                missing = [c for c in self.images if f"{c}_rgb" not in f]
+                if missing:
+                    raise ValueError(f"{path} has no {missing} images; it was collected for another model")
+                depth = torch.as_tensor(f["depth"][()]).long()
+                if len(depth) == 0:
+                    continue
+                for c in self.images:
+                    self.images[c] = torch.cat([self.images[c], self._resize(f[f"{c}_rgb"][()], config.image_size)])
+                self.ft = torch.cat([self.ft, torch.as_tensor(f["ft"][()]).float()])
+                self.depth = torch.cat([self.depth, depth])
+                added += len(depth)
+        self._index_depths()
+        return added
 
     @staticmethod
     def _resize(images: np.ndarray, size: int) -> torch.Tensor:

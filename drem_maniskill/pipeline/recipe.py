@@ -11,6 +11,8 @@ Sections (each optional; what is left out takes the defaults below or the config
 * ``[image_twin]``: ``enabled`` trains the image-only twin ``drem_image.pt`` on the same tree with ``modalities``.
 * ``[examine]``: the held-out seeds ``first_seed`` .. ``first_seed + episodes - 1``.
 * ``[calibrate]``: ``enabled`` writes the support guard's thresholds ``support.json`` (``quantile``).
+* ``[rounds]``: ``RoundsConfig`` (``pipeline.policy_rounds``): policy rounds of hard negatives after training;
+  ``rounds = 0`` (the default) trains as the paper does.
 * ``[scales.<name>]``: the same sections again, merged over the recipe for a smaller run (``tiny``: a test's
   minute; ``demo``: ``make demo``). The scale ``full`` is the recipe as written.
 """
@@ -40,7 +42,7 @@ SECTION_DEFAULTS = {
     "examine": dict(first_seed=0, episodes=20),
     "calibrate": dict(enabled=True, quantile=None),
 }
-SECTIONS = ("demo", "sampler", "train", "image_twin", "examine", "calibrate")
+SECTIONS = ("demo", "sampler", "train", "rounds", "image_twin", "examine", "calibrate")
 
 # A task without a recipe file: the paper's sampler (M = 500, no extra phases), 20,000 iterations at 64 px.
 GENERAL_DEFAULTS = {
@@ -67,6 +69,7 @@ class Recipe:
     demo: dict
     sampler: dict
     train: dict
+    rounds: dict
     image_twin: dict
     examine: dict
     calibrate: dict
@@ -87,6 +90,12 @@ class Recipe:
         if modalities is not None:
             model["modalities"] = tuple(modalities)
         return TrainConfig(**{**fields, **overrides, "model": ModelConfig(**model)})
+
+    def rounds_config(self):
+        """The ``RoundsConfig`` of ``[rounds]``."""
+        from drem_maniskill.pipeline.policy_rounds import RoundsConfig
+
+        return RoundsConfig(**self.rounds)
 
     def expert_file(self) -> Optional[Path]:
         """The committed demo ``[demo] expert`` names, beside the recipe (a dict's: in ``tasks/<task>/``), or None."""
@@ -156,6 +165,7 @@ def resolve(raw: dict, task: str, scale: str, source: str) -> Recipe:
         recipe.sampler_config()
         recipe.train_config()
         recipe.train_config(modalities=recipe.image_twin["modalities"])
+        recipe.rounds_config()
     except (TypeError, ValueError) as err:
         raise RecipeError(f"{source} (scale {scale}): {err}") from err
     return recipe
@@ -214,7 +224,9 @@ def valid_keys() -> dict:
 
     sampler = SamplerConfig().to_dict()
     sampler["phases"] = {name: asdict(phase.config()) for name, phase in PHASES.items()}
-    return {"sampler": sampler, "train": asdict(TrainConfig()), **SECTION_DEFAULTS}
+    from drem_maniskill.pipeline.policy_rounds import RoundsConfig
+
+    return {"sampler": sampler, "train": asdict(TrainConfig()), "rounds": asdict(RoundsConfig()), **SECTION_DEFAULTS}
 
 
 def merge(base: dict, override: dict) -> dict:

@@ -18,7 +18,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 import torch
@@ -76,17 +76,27 @@ class TrainConfig:
         return cls(**merged)
 
 
-def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainConfig(), progress: bool = True) -> str:
-    """Train on a progress tree; writes ``<out_dir>/drem.pt`` (and resumes from ``train_state.pt``)."""
+def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainConfig(), progress: bool = True,
+                 negatives: Sequence[str] = (), init_checkpoint: Optional[str] = None,
+                 extra_header: Optional[dict] = None) -> str:
+    """Train on a progress tree; writes ``<out_dir>/drem.pt`` (and resumes from ``train_state.pt``).
+
+    ``negatives``: hard-negative files added to the tree's nodes (``pipeline.policy_rounds``);
+    ``init_checkpoint``: a reward checkpoint whose weights the model starts from (fine-tuning);
+    ``extra_header``: entries added to the checkpoint's header.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if config.threads:
         torch.set_num_threads(config.threads)
     data = TreeDataset(dataset_path, config.model)
+    data.add_negatives(negatives, config.model)
     torch.manual_seed(config.seed)
     device = torch.device("cuda" if config.device == "auto" and torch.cuda.is_available() else
                           ("cpu" if config.device == "auto" else config.device))
     model = DREMModel(config.model).to(device)
+    if init_checkpoint is not None:
+        _load_weights(model, init_checkpoint, config.model)
     model.image_decoders.to(memory_format=torch.channels_last)
     model.image_encoders.to(memory_format=torch.channels_last)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
@@ -134,7 +144,18 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
             _save_train_state(state_path, model, opt, gen, step, config_json, dataset_path, len(data.depth))
     bar.close()
     writer.close()
-    return export_reward(model, data, config, out / "drem.pt")
+    return export_reward(model, data, config, out / "drem.pt", extra_header)
+
+
+def _load_weights(model: DREMModel, path: str, config) -> None:
+    """Start ``model`` from a reward checkpoint's weights; its architecture must be the one being trained."""
+    from drem_maniskill.drem.checkpoint import CheckpointError, load_checkpoint
+
+    header, weights = load_checkpoint(path)
+    if ModelConfig.from_dict(header["model"]).to_dict() != config.to_dict():
+        raise CheckpointError(f"{path} holds another model ({header['model']}) than the one trained "
+                              f"({config.to_dict()}); start from a checkpoint of the same architecture")
+    model.load_state_dict({k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")})
 
 
 def tree_order(model: DREMModel, data: TreeDataset, nodes: int = 512, seed: int = 0) -> float:
@@ -147,7 +168,7 @@ def tree_order(model: DREMModel, data: TreeDataset, nodes: int = 512, seed: int 
 
     model.eval()
     device = next(model.parameters()).device
-    count = len(data.depth)
+    count = data.tree_nodes  # the tree's own nodes: hard negatives added after them have no place in its order
     idx = torch.randperm(count, generator=torch.Generator().manual_seed(seed))[:nodes]
     with torch.no_grad():
         def embed(rows):
@@ -162,8 +183,9 @@ def tree_order(model: DREMModel, data: TreeDataset, nodes: int = 512, seed: int 
     return float(spearmanr(depth, dist).correlation)
 
 
-def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path: Path) -> str:
-    """Write the reward checkpoint: weights, ``h(s_0)``, ``h(s_G)`` and the header."""
+def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path: Path,
+                  extra_header: Optional[dict] = None) -> str:
+    """Write the reward checkpoint: weights, ``h(s_0)``, ``h(s_G)`` and the header (plus ``extra_header``)."""
     model.eval()
     with torch.no_grad():
         device = next(model.parameters()).device
@@ -184,6 +206,7 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
         sampler=data.header.get("config", {}),
         fit=dict(tree_order=tree_order(model, data), normaliser=normaliser),
         package_version=__version__,
+        **(extra_header or {}),
     )
     weights = {f"model.{k}": v.contiguous() for k, v in model.state_dict().items()}
     weights["h_start"] = h0[0]

@@ -57,7 +57,8 @@ class RLConfig:
     policy_qvel: bool = False
     """Whether the policy also gets the joint velocities (9)."""
     policy_privileged: bool = False
-    """Whether the policy gets the socket's pose (7): the task's object pose, as ManiSkill's state obs."""
+    """Whether the policy gets the task's object poses: the socket's (7) on ours, on ManiSkill's own tasks their
+    state observation's (``obs["extra"]`` but the TCP pose, e.g. the cube's and the goal's); without images only."""
     obs_norm: tuple = ()
     """Vector inputs (state, ft) normalised by running statistics in the network."""
     action_scale: float = 1.0

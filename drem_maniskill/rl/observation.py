@@ -24,6 +24,12 @@ def state_parts(qvel: bool = False, privileged: bool = False) -> tuple:
     return tuple(parts + ([("extra", "socket_pose")] if privileged else []))
 
 
+def task_state_parts(extra_space: spaces.Dict) -> tuple:
+    """ManiSkill's own task state (object and goal poses: ``obs["extra"]`` but the TCP pose), what its state
+    observation gives every policy; the privileged state of a policy on a stock task."""
+    return tuple(("extra", key) for key in extra_space.spaces if key != "tcp_pose")
+
+
 class PolicyObservation(gym.ObservationWrapper):
     """ManiSkill obs -> the policy's dict: uint8 ``[B, 3, S, S]`` per camera, ``ft`` ``[B, 8, 6]``, ``state``."""
 
@@ -44,7 +50,7 @@ class PolicyObservation(gym.ObservationWrapper):
         if ft:
             single["ft"] = spaces.Box(-np.inf, np.inf, src["extra"]["ft"].shape, np.float32)
         if state:
-            n = sum(src[g][k].shape[0] for g, k in self.state_keys)
+            n = sum(int(np.prod(src[g][k].shape)) for g, k in self.state_keys)  # scalars, e.g. a hole's radius
             single["state"] = spaces.Box(-np.inf, np.inf, (n,), np.float32)
         self.single_observation_space = spaces.Dict(single)
         b = env.unwrapped.num_envs
@@ -66,5 +72,6 @@ class PolicyObservation(gym.ObservationWrapper):
         if self.use_ft:
             out["ft"] = symlog(obs["extra"]["ft"].float())
         if self.use_state:
-            out["state"] = torch.cat([obs[g][k].float() for g, k in self.state_keys], dim=-1)
+            b = self.env.unwrapped.num_envs
+            out["state"] = torch.cat([obs[g][k].float().reshape(b, -1) for g, k in self.state_keys], dim=-1)
         return out

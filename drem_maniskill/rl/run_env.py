@@ -8,7 +8,7 @@ import gymnasium as gym
 
 from drem_maniskill.envs import check_env_id, is_insertion_task
 from drem_maniskill.experts import ee_control_kwargs
-from drem_maniskill.rl.observation import PolicyObservation, state_parts
+from drem_maniskill.rl.observation import PolicyObservation, state_parts, task_state_parts
 from drem_maniskill.rl.rewards import reward_spec, supported_rewards
 from drem_maniskill.rl.vec_env import ManiSkillDictVecEnv, SubprocDictVecEnv
 from drem_maniskill.utils.cameras import camera_roles, env_cameras
@@ -58,8 +58,10 @@ def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eva
         cameras = ()
     else:
         cameras = config.cameras if is_insertion_task(task) else tuple(camera_roles(env_cameras(env)).values())
-    # ManiSkill's own tasks have no socket: their privileged state is left out rather than guessed.
     keys = state_parts(config.policy_qvel, config.policy_privileged and is_insertion_task(task))
+    if config.policy_privileged and not is_insertion_task(task) and obs_mode == "state_dict":
+        # ManiSkill's own tasks: their object and goal poses, as ManiSkill's state observation has them.
+        keys += task_state_parts(env.unwrapped.single_observation_space["extra"])
     return PolicyObservation(env, config.image_size, cameras, ft=config.uses_ft, state=config.policy_state,
                              state_keys=keys), learned
 

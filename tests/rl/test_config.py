@@ -191,3 +191,22 @@ def test_native_bf16_reads_torchs_cpu_checks(monkeypatch):
     monkeypatch.delattr(torch.cpu, "_is_avx512_bf16_supported")
     monkeypatch.delattr(torch.cpu, "_is_amx_tile_supported")
     assert native_bf16() is False
+
+
+def test_state_preset_on_a_stock_task_sees_its_object_and_goal_poses():
+    """ManiSkill's state observation gives every policy the task's objects: so does the state preset on its tasks."""
+    import torch
+
+    from drem_maniskill.rl.run_env import make_env
+
+    env, _ = make_env(RLConfig.preset("state", task="PegInsertionSide-v1", reward="sparse"), for_eval=True)
+    try:
+        u = env.unwrapped
+        obs, _ = env.reset(seed=2)
+        assert set(obs) == {"state"}
+        robot = [u.agent.robot.get_qpos(), u.agent.robot.get_qvel(), u.agent.tcp.pose.raw_pose]
+        # The peg's pose, its half size, the hole's pose and radius: ManiSkill's obs["extra"] in its order.
+        task = [u.peg.pose.raw_pose, u.peg_half_sizes, u.box_hole_pose.raw_pose, u.box_hole_radii[:, None]]
+        torch.testing.assert_close(obs["state"], torch.cat(robot + task, dim=1))
+    finally:
+        env.close()

@@ -1,0 +1,259 @@
+"""``check-reward``: does a reward pay for the wrong thing? A short SAC run on it, then where its failures end.
+
+A DREM reward can order an expert's episodes well and still pay a state the tree never held (a hand held in
+front of the receptacle, a part pressed on the socket's face) almost what it pays the goal: a policy finds
+that state and stays. This check runs SAC on the reward (the ``state`` preset, so only the reward is on
+trial, not vision), rolls its policy out on held-out seeds and the scripted expert beside it, and reports:
+
+* return against success: the policy's success rate, its mean progress ``R`` per step, the expert's;
+* every failed episode's end: ``R`` over its last steps, and how far each of the task's moving objects
+  (and the hand) is from where the expert leaves it on the same seed;
+* return against success along the SAC run: each of its evaluations (``eval.csv``) as success rate and mean
+  ``R`` per step; an evaluation without success whose policy is paid per step at least ``paid_fraction`` of
+  what the expert is paid at its success is a paid evaluation (a policy that stays where it is paid);
+* ``paid failures``: failed episodes of the final policy that end paid at least ``paid_fraction`` of the
+  expert's end. The reward has an exploit when any evaluation was paid, or when paid failures are at least
+  ``exploit_share`` of the episodes.
+
+Rewards are reported as the paper's ``R`` (``drem_form="paper"``) whatever form the SAC run trained on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+import torch
+
+from drem_maniskill.envs import check_env_id
+from drem_maniskill.experts import get_policy, rollout
+from drem_maniskill.rl.config import RLConfig
+from drem_maniskill.utils.episodes import max_episode_steps
+
+LAST_STEPS = 10  # a failure "ends" over this many steps: a policy that stays there, not one passing by
+
+
+@dataclass
+class CheckConfig:
+    """What ``check-reward`` runs and how it judges."""
+
+    task: str = "PegInHole-v1"
+    """Env id the reward is for."""
+    checkpoint: Optional[str] = None
+    """The DREM checkpoint; None: the shipped rewards/<task>/drem.pt."""
+    steps: int = 20_000
+    """SAC env steps (the state preset)."""
+    seed: int = 0
+    """SAC's seed."""
+    episodes: int = 10
+    """Held-out episodes of the trained policy and of the expert."""
+    eval_seed: int = 10_000
+    """First held-out seed."""
+    learning_starts: int = 1_000
+    """SAC's random steps before its first update."""
+    eval_every: int = 2_500
+    """Env steps between SAC's own evaluations (its eval.csv)."""
+    eval_episodes: int = 3
+    """Episodes per SAC evaluation."""
+    paid_fraction: float = 0.8
+    """A failed episode is a paid failure when its end is paid at least this share of the expert's end."""
+    exploit_share: float = 0.3
+    """The reward has an exploit when paid failures are at least this share of the episodes."""
+    out: Optional[str] = None
+    """Output dir; None: outputs/check_reward/<task>/<checkpoint name>."""
+
+    def __post_init__(self):
+        if self.steps <= self.learning_starts:
+            raise ValueError(f"--steps ({self.steps}) must exceed --learning-starts ({self.learning_starts}): "
+                             "SAC learns nothing before them")
+        if self.episodes < 1:
+            raise ValueError(f"--episodes must be at least 1, got {self.episodes}")
+
+
+def policy_config(config: CheckConfig, checkpoint: Path, out: Path) -> RLConfig:
+    """The SAC run of a check: the state preset on the drem reward paid by ``checkpoint``."""
+    return RLConfig.preset("state", task=config.task, reward="drem", seed=config.seed, steps=config.steps,
+                           learning_starts=config.learning_starts, eval_every=min(config.eval_every, config.steps),
+                           reward_checkpoint=str(checkpoint), out=str(out / "sac"),
+                           eval_episodes=config.eval_episodes)
+
+
+def moving_objects(env) -> dict:
+    """``{name: position [3]}`` of the task's dynamic actors, the held part's tip in the socket's frame (our tasks,
+    where the part is a link of the robot) and the hand (``tcp``), first env of the batch."""
+    u = env.unwrapped
+    out = {name: actor.pose.p[0].cpu().numpy() for name, actor in u.scene.actors.items()
+           if getattr(actor, "px_body_type", "") == "dynamic"}
+    if hasattr(u, "tip_pose_in_socket"):
+        out["part tip"] = u.tip_pose_in_socket().p[0].cpu().numpy()
+    out["tcp"] = u.agent.tcp.pose.p[0].cpu().numpy()
+    return out
+
+
+def trained_policy(run: RLConfig):
+    """The deterministic policy of a finished SAC run (its last checkpoint)."""
+    from drem_maniskill.rl.algos import algo_spec
+    from drem_maniskill.rl.train_policy import deterministic_policy, latest_checkpoint
+
+    ckpt = latest_checkpoint(run.run_dir)
+    if ckpt is None:
+        raise FileNotFoundError(f"{run.run_dir} holds no SAC checkpoint; run the check again to train it")
+    return deterministic_policy(algo_spec(run.algo).load(ckpt, None, "cpu"))
+
+
+def trained_policy_sampled(run: RLConfig, seed: int = 0):
+    """The policy of a finished SAC run, sampling its actions (seeded): it visits more than its mean action."""
+    from drem_maniskill.rl.algos import algo_spec
+    from drem_maniskill.rl.train_policy import latest_checkpoint
+
+    ckpt = latest_checkpoint(run.run_dir)
+    if ckpt is None:
+        raise FileNotFoundError(f"{run.run_dir} holds no SAC checkpoint; rerun to train it")
+    model = algo_spec(run.algo).load(ckpt, None, "cpu")
+    torch.manual_seed(seed)  # SB3 samples with torch's global generator
+
+    def act(obs):
+        action, _ = model.predict({k: v.cpu().numpy() for k, v in obs.items()}, deterministic=False)
+        return torch.as_tensor(action, dtype=torch.float32)
+
+    return act
+
+
+def _episode_report(ep, objects: dict, expert_objects: Optional[dict]) -> dict:
+    """One policy episode: success, R per step, R at its end, and (failed) where its objects are."""
+    rewards = np.asarray(ep.rewards, dtype=float)
+    row = dict(seed=ep.seed, success=bool(ep.success), mean_reward=float(rewards.mean()),
+               end_reward=float(rewards[-LAST_STEPS:].mean()))
+    if not ep.success:
+        if expert_objects is not None:
+            row["distance_from_expert_end"] = {k: round(float(np.linalg.norm(v - expert_objects[k])), 4)
+                                               for k, v in objects.items() if k in expert_objects}
+        else:
+            row["position"] = {k: [round(float(x), 4) for x in v] for k, v in objects.items()}
+    return row
+
+
+def expert_ends(run: RLConfig, seeds: Sequence[int]) -> Optional[dict]:
+    """The scripted expert on ``seeds`` under the reward: ``R`` at its end and its objects there; None without one."""
+    from drem_maniskill.rl.run_env import make_eval_env
+
+    env = make_eval_env(dataclasses.replace(run, action_scale=1.0, drem_form="paper"))
+    try:
+        try:
+            expert = get_policy("expert", env, seed=0)
+        except ValueError:
+            return None
+        ends = {}
+        for seed in seeds:
+            ep = rollout(env, expert, int(seed), max_episode_steps(run.task), stop_on_success=True)
+            ends[int(seed)] = dict(success=bool(ep.success), end_reward=float(ep.rewards[-1]),
+                                   objects=moving_objects(env))
+        return ends
+    finally:
+        env.close()
+
+
+def run_curve(run: RLConfig) -> list:
+    """The SAC run's evaluations as ``{steps, success_rate, reward_per_step}`` (``R``, whatever form it trained on).
+
+    Evaluation episodes run the whole horizon, so a return is ``horizon`` rewards: ``R - 1`` each in the
+    shifted form.
+    """
+    from drem_maniskill.rl.train_policy import read_eval_csv
+
+    horizon = max_episode_steps(run.task)
+    shift = 1.0 if run.drem_form_used == "shifted" else 0.0
+    return [dict(steps=int(r["steps"]), success_rate=float(r["success_rate"]),
+                 reward_per_step=round(float(r["mean_return"]) / horizon + shift, 4))
+            for r in read_eval_csv(run.run_dir / "eval.csv")]
+
+
+def judge(rows: list, expert: Optional[dict], config: CheckConfig, curve: Sequence[dict] = ()) -> dict:
+    """Return against success, and whether the failures are paid like the expert's success."""
+    succeeded = [e["end_reward"] for e in (expert or {}).values() if e["success"]]
+    expert_end = float(np.mean(succeeded)) if succeeded else None
+    failed = [r for r in rows if not r["success"]]
+    threshold = config.paid_fraction * expert_end if expert_end is not None else None
+    paid = [r for r in failed if threshold is not None and r["end_reward"] >= threshold]
+    paid_evals = [c["steps"] for c in curve
+                  if threshold is not None and c["success_rate"] == 0 and c["reward_per_step"] >= threshold]
+    share = len(paid) / len(rows)
+    return dict(
+        success_rate=float(np.mean([r["success"] for r in rows])),
+        mean_reward_per_step=float(np.mean([r["mean_reward"] for r in rows])),
+        failed_end_reward=float(np.mean([r["end_reward"] for r in failed])) if failed else None,
+        expert_success_rate=float(np.mean([e["success"] for e in expert.values()])) if expert else None,
+        expert_end_reward=expert_end,
+        paid_threshold=threshold,
+        paid_failures=len(paid),
+        paid_failure_share=share,
+        paid_evaluations=paid_evals,
+        exploit=bool(paid_evals) or bool(threshold is not None and paid and share >= config.exploit_share),
+    )
+
+
+def check_reward(config: CheckConfig) -> dict:
+    """Run the check (resuming a SAC run it already started) and write ``report.json``; returns the report."""
+    from drem_maniskill.drem.checkpoint import resolve_checkpoint
+    from drem_maniskill.rl.run_env import make_eval_env
+    from drem_maniskill.rl.train_policy import file_sha256, train_policy
+
+    task = check_env_id(config.task)
+    checkpoint = resolve_checkpoint(task, config.checkpoint)
+    out = Path(config.out) if config.out else Path("outputs/check_reward") / task / checkpoint.stem
+    out.mkdir(parents=True, exist_ok=True)
+    run = policy_config(config, checkpoint, out)
+    trained = train_policy(run)
+    seeds = [config.eval_seed + i for i in range(config.episodes)]
+    expert = expert_ends(run, seeds)
+    act = trained_policy(run)
+    env = make_eval_env(dataclasses.replace(run, drem_form="paper"))
+    rows = []
+    try:
+        for seed in seeds:
+            ep = rollout(env, act, seed, max_episode_steps(task), stop_on_success=False)
+            rows.append(_episode_report(ep, moving_objects(env), expert[seed]["objects"] if expert else None))
+    finally:
+        env.close()
+    curve = run_curve(run)
+    report = dict(task=task, checkpoint=str(checkpoint), sha256=file_sha256(checkpoint),
+                  sac=dict(steps=trained["steps"], run_dir=str(run.run_dir), curve=curve),
+                  verdict=judge(rows, expert, config, curve), episodes=rows, config=dataclasses.asdict(config))
+    tmp = out / "report.json.tmp"
+    tmp.write_text(json.dumps(report, indent=2) + "\n")
+    os.replace(tmp, out / "report.json")
+    return report
+
+
+def summary_lines(report: dict) -> list:
+    """The report in a few lines, as the command prints it."""
+    v = report["verdict"]
+
+    def fmt(x):
+        return "n/a" if x is None else f"{x:.3f}"
+
+    curve = "; ".join(f"{c['steps']}: success {c['success_rate']:.2f}, R {c['reward_per_step']:.3f}"
+                      for c in report["sac"]["curve"])
+    lines = [f"{report['task']}: {report['checkpoint']} after {report['sac']['steps']} SAC steps (state preset)",
+             f"  along the run (steps: success, mean R per step): {curve}",
+             f"  policy: success {v['success_rate']:.2f}, mean R per step {v['mean_reward_per_step']:.3f}; "
+             f"failed episodes end at R {fmt(v['failed_end_reward'])}",
+             f"  expert: success {fmt(v['expert_success_rate'])}, R at its end {fmt(v['expert_end_reward'])}",
+             f"  paid failures (end R >= {fmt(v['paid_threshold'])}): {v['paid_failures']} of "
+             f"{len(report['episodes'])} episodes"]
+    for row in report["episodes"]:
+        if not row["success"]:
+            where = row.get("distance_from_expert_end") or row.get("position")
+            lines.append(f"    seed {row['seed']}: ends at R {row['end_reward']:.3f}; "
+                         + ", ".join(f"{k} {v} m from the expert's end" if "distance_from_expert_end" in row
+                                     else f"{k} at {v}" for k, v in where.items()))
+    if v["paid_evaluations"]:
+        lines.append(f"  paid without success at steps {v['paid_evaluations']}")
+    lines.append("  EXPLOIT: the reward pays failures like success" if v["exploit"]
+                 else "  no exploit found")
+    return lines

@@ -1,0 +1,203 @@
+"""Policy rounds: hard negatives from the states a policy trained on the reward reaches (beyond the paper).
+
+A DREM reward is taught by its progress tree, and a policy finds the states the tree lacks: where the
+reward pays almost what it pays the goal and the task is not done. Each round closes that loop without
+anyone naming the states:
+
+1. SAC (the ``state`` preset) trains on the current reward for ``sac_steps``;
+2. its policy runs ``episodes`` held-out episodes, sampling its actions; in every episode without success,
+   the states the reward pays at least what it pays the tree's nodes at ``negative_depth`` are hard
+   negatives (the measured rule: paid more than a node that far from the goal, yet no success);
+3. they join the tree at depth ``negative_depth``, farther from the goal than its neighbourhood
+   (``2 eps + 1`` by default: beyond the goal's neighbours and theirs), and the model is fine-tuned from the
+   current weights for ``iterations`` on the tree and every round's negatives.
+
+Every round lives in ``<out>/round_<k>/`` (``sac/``, ``negatives.h5``, ``train/drem.pt``) and a finished stage
+is never redone: a killed round, rerun, goes on from its last finished stage (the SAC run and the training
+from their own checkpoints). The checkpoint's header lists the rounds (``rounds``), the model card too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import h5py
+import numpy as np
+import torch
+
+from drem_maniskill.utils.episodes import max_episode_steps
+from drem_maniskill.utils.progress import progress_bar
+
+
+@dataclass
+class RoundsConfig:
+    """Policy rounds of ``build-reward`` (the recipe's ``[rounds]``); ``rounds = 0``: none, the paper's pipeline."""
+
+    rounds: int = 0
+    """Rounds of SAC, hard negatives and fine-tuning."""
+    sac_steps: int = 10_000
+    """SAC env steps per round (the state preset)."""
+    learning_starts: int = 1_000
+    """SAC's random steps before its first update."""
+    episodes: int = 20
+    """Episodes of the round's policy (sampled actions) searched for hard negatives."""
+    negative_depth: Optional[int] = None
+    """The depth hard negatives are labelled with; None: 2 eps + 1."""
+    max_negatives: int = 1_000
+    """At most this many hard negatives per round (evenly spread over the candidates)."""
+    iterations: int = 1_000
+    """Fine-tuning iterations per round, from the previous round's weights."""
+    seed: int = 0
+    """Seed of round 1's SAC run and episodes (round k: seed + k - 1)."""
+
+    def depth(self, eps: float) -> int:
+        """The hard negatives' depth label for the triplet loss's ``eps``."""
+        return int(self.negative_depth) if self.negative_depth is not None else int(2 * eps + 1)
+
+
+def round_policy_config(task: str, checkpoint, config: RoundsConfig, k: int, round_dir: Path):
+    """The SAC run of round ``k``: the state preset on the drem reward paid by ``checkpoint``."""
+    from drem_maniskill.rl.config import RLConfig
+
+    return RLConfig.preset("state", task=task, reward="drem", seed=config.seed + k - 1, steps=config.sac_steps,
+                           learning_starts=config.learning_starts, eval_every=config.sac_steps, eval_episodes=3,
+                           reward_checkpoint=str(checkpoint), out=str(round_dir / "sac"))
+
+
+@torch.no_grad()
+def paid_at_depth(checkpoint, tree: str, depth: int, image_size: Optional[int] = None) -> float:
+    """The mean ``R`` the reward pays the tree's nodes at ``depth`` (the nearest depth the tree has)."""
+    from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.pipeline.dataset import TreeDataset
+
+    reward = DREMReward.from_checkpoint(str(checkpoint))
+    data = TreeDataset(tree, reward.model.config)
+    nearest = min(data.by_depth, key=lambda d: abs(d - depth))
+    idx = data.by_depth[nearest][:256]
+    batch = data.batch(idx)
+    if not reward.uses_ft:
+        batch.pop("ft")
+    return float(reward(batch).mean())
+
+
+def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k: int, depth: int) -> dict:
+    """Run round ``k``'s policy (sampled actions) and keep the failed episodes' states paid ``>= threshold``."""
+    from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.experts import rollout
+    from drem_maniskill.pipeline.check_reward import trained_policy_sampled
+    from drem_maniskill.rl.run_env import make_eval_env
+
+    env = make_eval_env(dataclasses.replace(run, drem_form="paper"))
+    reward = DREMReward.from_checkpoint(str(checkpoint), env)
+    act = trained_policy_sampled(run, seed=config.seed + k - 1)
+    kept, stats = [], dict(episodes=0, failed=0, candidates=0)
+    try:
+        for i in progress_bar(range(config.episodes), desc=f"round {k}: policy episodes"):
+            steps = []
+
+            def measure(env, obs, action, info, steps=steps):
+                inputs = reward.inputs(env, None)
+                steps.append(({m: v[:1].cpu().clone() for m, v in inputs.items()}, float(reward(inputs)[0])))
+                return {}
+
+            seed = 20_000 + 1_000 * k + i  # clear of the evaluation seeds (10,000 on) and the demo's
+            ep = rollout(env, act, seed, max_episode_steps(run.task), stop_on_success=False, measure=measure)
+            stats["episodes"] += 1
+            if ep.success:
+                continue
+            stats["failed"] += 1
+            kept += [(inputs, r, seed, t) for t, (inputs, r) in enumerate(steps) if r >= threshold]
+    finally:
+        env.close()
+    stats["candidates"] = len(kept)
+    if len(kept) > config.max_negatives:
+        kept = [kept[i] for i in np.linspace(0, len(kept) - 1, config.max_negatives).round().astype(int)]
+    stats["negatives"] = len(kept)
+    stats["reward_before"] = float(np.mean([r for _, r, _, _ in kept])) if kept else None
+    return dict(stats=stats, rows=kept)
+
+
+def write_negatives(path: Path, rows: list, depth: int, cameras, has_ft: bool) -> None:
+    """The hard negatives as HDF5 (``<camera>_rgb``, ``ft``, ``depth``, ``reward``, ``seed``, ``step``), atomically."""
+    tmp = path.with_name(path.name + ".tmp")
+    with h5py.File(tmp, "w") as f:
+        for c in cameras:
+            f.create_dataset(f"{c}_rgb", data=np.concatenate([x[c].numpy() for x, *_ in rows])
+                             if rows else np.zeros((0, 1, 1, 3), np.uint8), compression="gzip")
+        ft = [x["ft"].numpy() for x, *_ in rows] if has_ft else []
+        f.create_dataset("ft", data=np.concatenate(ft) if ft else np.zeros((len(rows), 8, 6), np.float32))
+        f.create_dataset("depth", data=np.full(len(rows), depth, np.int64))
+        f.create_dataset("reward", data=np.array([r for _, r, _, _ in rows], np.float32))
+        f.create_dataset("seed", data=np.array([s for _, _, s, _ in rows], np.int64))
+        f.create_dataset("step", data=np.array([t for _, _, _, t in rows], np.int64))
+    os.replace(tmp, path)
+
+
+def run_round(task: str, tree: str, checkpoint: Path, train_config, config: RoundsConfig, k: int, out: Path,
+              negatives: list) -> tuple:
+    """Round ``k`` from ``checkpoint``; returns ``(its checkpoint, its record)``, each stage resumed where it was."""
+    from drem_maniskill.drem.checkpoint import load_checkpoint
+    from drem_maniskill.pipeline.train_reward import train_reward
+    from drem_maniskill.rl.train_policy import train_policy
+
+    round_dir = out / f"round_{k}"
+    round_dir.mkdir(parents=True, exist_ok=True)
+    depth = config.depth(train_config.eps)
+    run = round_policy_config(task, checkpoint, config, k, round_dir)
+    record_path = round_dir / "collected.json"
+    if not record_path.exists():
+        result = train_policy(run)
+        threshold = paid_at_depth(checkpoint, tree, depth)
+        found = collect_negatives(run, checkpoint, threshold, config, k, depth)
+        write_negatives(round_dir / "negatives.h5", found["rows"], depth, train_config.model.cameras,
+                        "ft" in train_config.model.modalities)
+        last = result["last_eval"] or {}
+        record = dict(round=k, sac_steps=run.steps, sac_success=last.get("success_rate"), negative_depth=depth,
+                      threshold=round(threshold, 4), **found["stats"])
+        tmp = record_path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(record, indent=2) + "\n")
+        os.replace(tmp, record_path)
+    record = json.loads(record_path.read_text())
+    negatives = [*negatives, str(round_dir / "negatives.h5")]
+    path = round_dir / "train" / "drem.pt"
+    if not path.exists():
+        header, _ = load_checkpoint(str(checkpoint))
+        tuned = dataclasses.replace(train_config, iterations=config.iterations,
+                                    save_every=min(train_config.save_every, config.iterations))
+        train_reward(tree, str(round_dir / "train"), tuned, negatives=negatives, init_checkpoint=str(checkpoint),
+                     extra_header=dict(rounds=[*header.get("rounds", []), record]))
+        _record_after(path, round_dir / "negatives.h5")
+    return path, negatives
+
+
+@torch.no_grad()
+def _record_after(path: Path, negatives: Path) -> None:
+    """Add to the new checkpoint's last round what it pays that round's negatives (the round's effect)."""
+    from drem_maniskill.drem.checkpoint import load_checkpoint, save_checkpoint
+    from drem_maniskill.drem.reward import DREMReward
+
+    header, weights = load_checkpoint(str(path))
+    reward = DREMReward(header, weights)
+    with h5py.File(negatives, "r") as f:
+        batch = {m: torch.as_tensor(f[f"{m}_rgb"][()]) for m in reward.model.config.cameras}
+        if reward.uses_ft:
+            batch["ft"] = torch.as_tensor(f["ft"][()]).float()
+    count = len(next(iter(batch.values())))
+    after = float(torch.cat([reward({k: v[i:i + 128] for k, v in batch.items()})
+                             for i in range(0, count, 128)]).mean()) if count else None
+    header["rounds"][-1]["reward_after"] = None if after is None else round(after, 4)
+    save_checkpoint(str(path), header, weights)
+
+
+def run_rounds(task: str, tree: str, checkpoint, train_config, config: RoundsConfig, out) -> Path:
+    """Every round from the paper's ``checkpoint``; the last round's checkpoint (``checkpoint`` with no rounds)."""
+    out = Path(out)
+    current, negatives = Path(checkpoint), []
+    for k in range(1, config.rounds + 1):
+        current, negatives = run_round(task, tree, current, train_config, config, k, out, negatives)
+    return current

@@ -1,0 +1,73 @@
+"""check-reward: a short SAC run on a reward, and whether it pays failures like success."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from drem_maniskill.cli import main
+from drem_maniskill.pipeline.check_reward import CheckConfig, judge
+
+EXPERT = {0: dict(success=True, end_reward=1.0), 1: dict(success=True, end_reward=0.9)}  # ends at 0.95 on average
+
+
+def _row(success: bool, end: float) -> dict:
+    return dict(seed=0, success=success, mean_reward=end / 2, end_reward=end)
+
+
+def test_failures_paid_like_the_expert_are_an_exploit_and_cheap_ones_are_not():
+    config = CheckConfig(paid_fraction=0.8, exploit_share=0.3)
+    paid = judge([_row(False, 0.9), _row(False, 0.2), _row(True, 1.0)], EXPERT, config)
+    assert paid["paid_threshold"] == pytest.approx(0.76) and paid["paid_failures"] == 1
+    assert paid["exploit"] and paid["success_rate"] == pytest.approx(1 / 3)
+    cheap = judge([_row(False, 0.5), _row(False, 0.2), _row(True, 1.0)], EXPERT, config)
+    assert not cheap["exploit"] and cheap["failed_end_reward"] == pytest.approx(0.35)
+    # One paid failure in ten episodes is a near miss, not a reward that pays for the wrong thing.
+    rare = judge([_row(False, 0.9)] + [_row(True, 1.0)] * 9, EXPERT, config)
+    assert rare["paid_failures"] == 1 and not rare["exploit"]
+
+
+def test_an_evaluation_paid_without_success_is_an_exploit():
+    """Return against success along the run: a policy paid 0.99 a step with no success has found something."""
+    config = CheckConfig()
+    curve = [dict(steps=0, success_rate=0.0, reward_per_step=0.99), dict(steps=600, success_rate=0.0,
+                                                                        reward_per_step=0.2)]
+    verdict = judge([_row(False, 0.1)], EXPERT, config, curve)
+    assert verdict["paid_evaluations"] == [0] and verdict["exploit"]
+    learning = [dict(steps=0, success_rate=0.0, reward_per_step=0.1), dict(steps=600, success_rate=0.5,
+                                                                          reward_per_step=0.9)]
+    assert not judge([_row(True, 1.0)], EXPERT, config, learning)["exploit"]
+    assert not judge([_row(False, 0.9)], None, config, curve)["exploit"]  # no expert: nothing to compare with
+
+
+def test_a_run_too_short_to_learn_is_refused():
+    with pytest.raises(ValueError, match="must exceed --learning-starts"):
+        CheckConfig(steps=500, learning_starts=1000)
+
+
+# 600 steps: 100 gradient steps after 500 random ones, evaluations at 0 and 600.
+SMALL = ["--steps", "600", "--learning-starts", "500", "--eval-every", "600", "--eval-episodes", "1"]
+
+
+@pytest.mark.slow
+def test_the_shipped_plug_charger_reward_is_reported_as_exploited(tmp_path, capsys):
+    """Its policies are paid about 0.99 a step without the plug ever going in (docs/results.md)."""
+    assert main(["check-reward", "--task", "PlugCharger-v1", "--episodes", "1", "--out", str(tmp_path), *SMALL]) == 0
+    out = capsys.readouterr().out
+    report = json.loads((tmp_path / "report.json").read_text())
+    v = report["verdict"]
+    assert v["exploit"] and "EXPLOIT" in out, out
+    assert v["success_rate"] == 0 and v["expert_success_rate"] == 1
+    assert v["paid_evaluations"] and all(c["success_rate"] == 0 for c in report["sac"]["curve"])
+
+
+@pytest.mark.slow
+def test_a_reward_that_teaches_reports_no_exploit(tmp_path, capsys):
+    """The shipped PegInHole-v1 reward: a barely trained policy fails, and is paid little for it."""
+    assert main(["check-reward", "--task", "PegInHole-v1", "--episodes", "2", "--out", str(tmp_path), *SMALL]) == 0
+    out = capsys.readouterr().out
+    v = json.loads((tmp_path / "report.json").read_text())["verdict"]
+    assert not v["exploit"] and "no exploit found" in out, out
+    assert v["expert_success_rate"] == 1 and v["paid_failures"] == 0
+    assert "part tip" in out and "m from the expert's end" in out  # the held peg: where its tip is in the socket

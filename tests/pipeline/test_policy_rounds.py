@@ -1,0 +1,118 @@
+"""Policy rounds: hard negatives from a policy trained on the reward, recorded in the header, resumable."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import pytest
+import torch
+
+from drem_maniskill.drem.checkpoint import load_checkpoint
+from drem_maniskill.pipeline.policy_rounds import RoundsConfig, run_rounds
+from drem_maniskill.pipeline.recipe import RecipeError, load_recipe
+
+# One round: 300 SAC steps (gradient steps after 200), two policy episodes, 60 fine-tuning iterations.
+# Labelled deep (30 of the tiny tree's ~60 depths) so that a barely trained reward still over-pays some states.
+ROUNDS = RoundsConfig(rounds=1, sac_steps=300, learning_starts=200, episodes=2, iterations=60, negative_depth=30)
+
+SCRIPT = """
+import json, sys
+from drem_maniskill.pipeline.policy_rounds import RoundsConfig, run_rounds
+from drem_maniskill.pipeline.train_reward import TrainConfig
+a = json.loads(sys.argv[1])
+config = TrainConfig(**{**a["train"], "model": __import__("drem_maniskill.drem.model", fromlist=["ModelConfig"])
+                        .ModelConfig(**a["train"]["model"])})
+print(run_rounds("PegInHole-v1", a["tree"], a["checkpoint"], config, RoundsConfig(**a["rounds"]), a["out"]))
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """The tiny recipe's tree and reward of PegInHole-v1, and its training config (saving every 10 iterations)."""
+    from drem_maniskill.pipeline import backward_sample
+    from drem_maniskill.pipeline.dataset import dataset_modalities
+    from drem_maniskill.pipeline.train_reward import train_reward
+
+    r = load_recipe("PegInHole-v1", "tiny")
+    work = tmp_path_factory.mktemp("rounds")
+    tree = backward_sample(str(r.expert_file()), str(work / "tree.h5"), r.sampler_config())
+    config = dataclasses.replace(r.train_config(modalities=dataset_modalities(tree)), save_every=10)
+    checkpoint = train_reward(tree, str(work / "reward"), config, progress=False)
+    return tree, config, checkpoint
+
+
+def _rewards(checkpoint, negatives: Path) -> torch.Tensor:
+    from drem_maniskill.drem.reward import DREMReward
+
+    reward = DREMReward.from_checkpoint(str(checkpoint))
+    with h5py.File(negatives, "r") as f:
+        batch = {m: torch.as_tensor(f[f"{m}_rgb"][()]) for m in reward.model.config.cameras}
+        batch["ft"] = torch.as_tensor(f["ft"][()]).float()
+    return reward(batch)
+
+
+@pytest.mark.slow
+def test_a_round_adds_the_over_paid_states_of_failed_episodes_and_pays_them_less(tiny, tmp_path):
+    tree, config, checkpoint = tiny
+    last = run_rounds("PegInHole-v1", tree, checkpoint, config, ROUNDS, tmp_path)
+    header, _ = load_checkpoint(str(last))
+    (record,) = header["rounds"]
+    assert record["round"] == 1 and record["negative_depth"] == 30 and record["sac_steps"] == 300
+    assert record["episodes"] == 2 and record["failed"] == 2  # 300 steps teach no insertion
+    negatives = tmp_path / "round_1" / "negatives.h5"
+    with h5py.File(negatives, "r") as f:
+        assert len(f["depth"]) == record["negatives"] > 0 and set(f["depth"][()]) == {30}
+        assert f["fixed_rgb"].shape[1:] == (128, 128, 3) and f["ft"].shape[1:] == (8, 6)
+    # Kept because the reward paid them at least what it pays the tree's nodes at depth 30.
+    before = _rewards(checkpoint, negatives)
+    assert float(before.min()) >= record["threshold"] - 1e-4
+    assert record["reward_before"] == pytest.approx(float(before.mean()), abs=1e-4)
+    after = _rewards(last, negatives)
+    assert record["reward_after"] == pytest.approx(float(after.mean()), abs=1e-4)
+    assert float(after.mean()) < float(before.mean())  # labelled farther from the goal, they are paid less
+    assert header["train"]["iterations"] == 60 and header["fit"]["tree_order"] > 0
+
+
+@pytest.mark.slow
+def test_a_round_killed_while_fine_tuning_and_rerun_ends_with_the_same_checkpoint(tiny, tmp_path):
+    tree, config, checkpoint = tiny
+    first = tmp_path / "first"
+    last = run_rounds("PegInHole-v1", tree, checkpoint, config, ROUNDS, first)
+    # The same round again from its finished SAC run and negatives, killed at its first training checkpoint.
+    second = tmp_path / "second"
+    shutil.copytree(first, second, ignore=shutil.ignore_patterns("train"))
+    args = json.dumps(dict(tree=tree, checkpoint=str(checkpoint), out=str(second), rounds=dataclasses.asdict(ROUNDS),
+                           train={**dataclasses.asdict(config), "model": config.model.to_dict()}))
+    state = second / "round_1" / "train" / "train_state.pt"
+    proc = subprocess.Popen([sys.executable, "-c", SCRIPT, args], start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while proc.poll() is None and not state.exists() and time.time() < deadline:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert state.exists() and not (second / "round_1" / "train" / "drem.pt").exists()
+    assert torch.load(state, weights_only=True)["step"] < ROUNDS.iterations
+    done = subprocess.run([sys.executable, "-c", SCRIPT, args], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    again = Path(done.stdout.strip().splitlines()[-1])
+    (h1, w1), (h2, w2) = load_checkpoint(str(last)), load_checkpoint(str(again))
+    assert h1 == h2
+    assert all(torch.equal(w1[k], w2[k]) for k in w1)
+
+
+def test_a_recipe_takes_rounds_and_refuses_an_unknown_key():
+    raw = {"rounds": {"rounds": 2, "sac_steps": 5000}}
+    assert load_recipe("Any-v1", recipe=raw).rounds_config() == RoundsConfig(rounds=2, sac_steps=5000)
+    assert load_recipe("Any-v1", recipe={}).rounds_config().rounds == 0  # the paper's pipeline
+    with pytest.raises(RecipeError, match="unknown key 'round'"):
+        load_recipe("Any-v1", recipe={"rounds": {"round": 2}})
