@@ -1,4 +1,4 @@
-"""The documented commands still make the committed state-preset comparison (docs/results.md)."""
+"""The documented commands still make the committed state- and image-preset comparisons (docs/results.md)."""
 
 from __future__ import annotations
 
@@ -28,6 +28,29 @@ def _command_config(saved: dict) -> dict:
         "--steps", "50000", "--preset", "state", "--no-bf16", "--no-overlap-env", "--out", "outputs/rl"])
     (config,) = configs_from_args(args)
     return config.to_dict()
+
+
+IMAGE_RUNS = sorted((ROOT / "docs/results/comparison_image").glob("*/*/seed*/config.json"))
+
+
+@pytest.mark.parametrize("path", IMAGE_RUNS, ids=lambda p: "/".join(p.parts[-4:-1]))
+def test_the_image_comparison_command_makes_each_committed_runs_config(path):
+    """docs/results.md's sweep of the image comparison, run to 50,000 steps."""
+    saved = json.loads(path.read_text())
+    parser = argparse.ArgumentParser()
+    add_subcommands(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["sweep", "--tasks", saved["task"], "--rewards", saved["reward"], "--seeds",
+                              str(saved["seed"]), "--steps", "50000", "--preset", "image", "--out", "outputs/rl_image"])
+    (config,) = configs_from_args(args)
+    made = config.to_dict()
+    assert saved.pop("out") == made.pop("out")
+    assert made == saved
+    rows = (path.parent / "eval.csv").read_text().splitlines()
+    assert rows[-1].split(",")[0] == "50000" and len(rows) == 1 + 50_000 // 2_500 + 1  # header, 0, every 2,500
+    record = path.parent / "reward_checkpoint.json"
+    if saved["reward"].startswith("drem"):
+        shipped = resolve_checkpoint(saved["task"], image_only=saved["reward"] == "drem-image")
+        assert json.loads(record.read_text())["sha256"] == hashlib.sha256(shipped.read_bytes()).hexdigest()
 
 
 def test_every_committed_run_is_counted():
