@@ -63,8 +63,9 @@ def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
         label += f", {form}"
     if cfg.get("terminate_on_success"):
         label += ", ends at success"
-    if cfg.get("obs_norm"):
-        label += ", norm " + "+".join(cfg["obs_norm"])
+    normalised = _normalised_inputs(cfg)
+    if normalised:
+        label += ", norm " + "+".join(normalised)
     if cfg.get("action_scale", 1.0) != 1.0:
         label += f", actions x{cfg['action_scale']:g}"
     ratio = cfg.get("gradient_steps", 1) / cfg.get("train_freq", 1)
@@ -75,6 +76,13 @@ def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
     if overlap_env_used(bool(cfg.get("overlap_env")), cfg["reward"], cfg.get("algo", "sac")):
         label += ", overlapped"  # each action from the policy one update older
     return label
+
+
+def _normalised_inputs(cfg: dict) -> list:
+    """The policy inputs a run normalised: ``obs_norm`` less an F/T history its policy did not get."""
+    policy_ft = cfg.get("policy_ft", True)
+    gets_ft = cfg["reward"] == "drem" if policy_ft is None else bool(policy_ft)
+    return [k for k in cfg.get("obs_norm") or () if k != "ft" or gets_ft]
 
 
 def load_run(run_dir) -> dict:

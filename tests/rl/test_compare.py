@@ -115,3 +115,14 @@ def test_runs_are_grouped_by_the_checkpoint_file_that_paid_them(tmp_path):
     assert labels["default"] == labels["copy"] == "drem"
     assert labels["old"] == f"drem (checkpoint {file_sha256(other)[:8]})"
     assert labels["unpinned"] == "drem (out/reward/drem.pt)"  # runs made before the pin: named by the path given
+
+
+def test_a_run_label_names_only_the_inputs_its_policy_normalised():
+    """The image preset normalises state and F/T, but only DREM's policy gets the F/T history."""
+    from drem_maniskill.rl.compare import run_label
+    from drem_maniskill.rl.config import RLConfig
+
+    labels = {r: run_label(RLConfig.preset("image", reward=r).to_dict()) for r in ("sparse", "drem")}
+    assert "norm state," in labels["sparse"] + "," and "norm state+ft" not in labels["sparse"]
+    assert "norm state+ft" in labels["drem"]
+    assert "norm state+ft" in run_label(RLConfig.preset("light", reward="sparse").to_dict())  # every policy gets it
