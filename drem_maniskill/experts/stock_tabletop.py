@@ -17,7 +17,7 @@ import torch
 
 from mani_skill.utils.structs import Pose
 
-from drem_maniskill.experts.stock import _pose, _StockExpert, _top_down_grasp_q
+from drem_maniskill.experts.stock_base import _pose, _StockExpert, _top_down_grasp_q
 
 NO_INTEGRAL = 1_000  # a phase index no expert reaches: proportional servo only
 
