@@ -30,6 +30,7 @@ VARIANTS = {
     "iters5000": {"train": {"iterations": 5000}},
     "m50": {"sampler": {"num_children": 50}},
     "rounds3": {"rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
+    "trees5": {"demo": {"episodes": 5, "trees": 5}},
 }
 RESULTS = Path("docs/results/general_recipe")
 
@@ -50,7 +51,8 @@ def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
     return dict(task=task, variant=variant, recipe=recipe(variant), build_seconds=round(seconds),
                 value_order_spearman=quality["value_order_spearman"],
                 final_reward_auroc=quality["final_reward_auroc"], random_mean_reward=quality["random_mean_reward"],
-                success_rate=quality["success_rate"], fit=header.get("fit"), rounds=header.get("rounds", []))
+                success_rate=quality["success_rate"], fit=header.get("fit"), rounds=header.get("rounds", []),
+                trees=header.get("trees", []))
 
 
 def main() -> None:

@@ -74,6 +74,35 @@ class TreeDataset:
     def _index_depths(self) -> None:
         self.by_depth = {int(d): torch.nonzero(self.depth == d).flatten() for d in torch.unique(self.depth)}
 
+    def add_trees(self, paths, config: ModelConfig) -> int:
+        """Append the nodes of more progress trees (other demo episodes of the same env) at their depths; returns how
+        many. The goal, ``h(s_0)`` and ``h(s_G)`` stay this tree's: every tree is taught toward one latent goal."""
+        added = 0
+        for path in paths:
+            with tree_file.open_tree(path) as f:
+                header = tree_file.read_header(f)
+                if header.get("env_id") != self.header.get("env_id"):
+                    raise ValueError(f"{path} was sampled on {header.get('env_id')}, the first tree on "
+                                     f"{self.header.get('env_id')}; a forest's trees come from one task's demo")
+                if header.get("camera_map", dict(CAMERA_OF)) != self.camera_map:
+                    raise ValueError(f"{path} holds cameras {header.get('camera_map')}, the first tree "
+                                     f"{self.camera_map}; sample every tree from the same demo file")
+                added += self._append(f, config)
+        self.tree_nodes += added
+        self._index_depths()
+        return added
+
+    def _append(self, f, config: ModelConfig) -> int:
+        """Append the nodes of an open tree or negatives file; returns how many."""
+        depth = torch.as_tensor(f["depth"][()]).long()
+        if len(depth) == 0:
+            return 0
+        for c in self.images:
+            self.images[c] = torch.cat([self.images[c], self._resize(f[f"{c}_rgb"][()], config.image_size)])
+        self.ft = torch.cat([self.ft, torch.as_tensor(f["ft"][()]).float()])
+        self.depth = torch.cat([self.depth, depth])
+        return len(depth)
+
     def add_negatives(self, paths, config: ModelConfig) -> int:
         """Append the hard negatives of ``paths`` (``pipeline.policy_rounds``' files) as nodes at their labelled
         depths; returns how many. Their cameras must be the tree's."""
@@ -83,14 +112,7 @@ class TreeDataset:
                 missing = [c for c in self.images if f"{c}_rgb" not in f]
                 if missing:
                     raise ValueError(f"{path} has no {missing} images; it was collected for another model")
-                depth = torch.as_tensor(f["depth"][()]).long()
-                if len(depth) == 0:
-                    continue
-                for c in self.images:
-                    self.images[c] = torch.cat([self.images[c], self._resize(f[f"{c}_rgb"][()], config.image_size)])
-                self.ft = torch.cat([self.ft, torch.as_tensor(f["ft"][()]).float()])
-                self.depth = torch.cat([self.depth, depth])
-                added += len(depth)
+                added += self._append(f, config)
         self._index_depths()
         return added
 

@@ -24,7 +24,7 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence
 
 import h5py
 import numpy as np
@@ -139,7 +139,7 @@ def write_negatives(path: Path, rows: list, depth: int, cameras, has_ft: bool) -
 
 
 def run_round(task: str, tree: str, checkpoint: Path, train_config, config: RoundsConfig, k: int, out: Path,
-              negatives: list) -> tuple:
+              negatives: list, trees: Sequence[str] = ()) -> tuple:
     """Round ``k`` from ``checkpoint``; returns ``(its checkpoint, its record)``, each stage resumed where it was."""
     from drem_maniskill.drem.checkpoint import load_checkpoint
     from drem_maniskill.pipeline.train_reward import train_reward
@@ -170,7 +170,7 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
         tuned = dataclasses.replace(train_config, iterations=config.iterations,
                                     save_every=min(train_config.save_every, config.iterations))
         train_reward(tree, str(round_dir / "train"), tuned, negatives=negatives, init_checkpoint=str(checkpoint),
-                     extra_header=dict(rounds=[*header.get("rounds", []), record]))
+                     extra_header=dict(rounds=[*header.get("rounds", []), record]), trees=trees)
         _record_after(path, round_dir / "negatives.h5")
     return path, negatives
 
@@ -194,10 +194,12 @@ def _record_after(path: Path, negatives: Path) -> None:
     save_checkpoint(str(path), header, weights)
 
 
-def run_rounds(task: str, tree: str, checkpoint, train_config, config: RoundsConfig, out) -> Path:
-    """Every round from the paper's ``checkpoint``; the last round's checkpoint (``checkpoint`` with no rounds)."""
+def run_rounds(task: str, tree: str, checkpoint, train_config, config: RoundsConfig, out,
+               trees: Sequence[str] = ()) -> Path:
+    """Every round from the paper's ``checkpoint`` (trained on ``tree`` and ``trees``); the last round's checkpoint
+    (``checkpoint`` with no rounds)."""
     out = Path(out)
     current, negatives = Path(checkpoint), []
     for k in range(1, config.rounds + 1):
-        current, negatives = run_round(task, tree, current, train_config, config, k, out, negatives)
+        current, negatives = run_round(task, tree, current, train_config, config, k, out, negatives, trees)
     return current

@@ -5,6 +5,8 @@ Sections (each optional; what is left out takes the defaults below or the config
 * ``[demo]``: the expert demo. ``expert`` names a committed demo beside the recipe (``expert.h5``, its
   ``.json`` beside it); without one, or when that file is missing, ``record-expert`` records ``episodes``
   episodes from ``seed`` with ``descent_step`` / ``descend_from`` (our tasks' expert) and ``env_kwargs``.
+  ``trees`` (1, the paper's one demo): how many of its episodes are sampled into a progress tree each and trained on
+  together, toward the first episode's goal; more than one teaches a task whose reset moves its objects.
 * ``[sampler]``: ``SamplerConfig`` in its nested form, the extra phases under ``[sampler.phases.<name>]``.
 * ``[train]``: ``TrainConfig`` fields, the model's under ``[train.model]`` (``ModelConfig``); without
   ``modalities`` the model reads every modality the tree holds.
@@ -37,7 +39,7 @@ GENERAL = "default"
 
 # Section -> its keys and their defaults (None: no default, the key may be left out).
 SECTION_DEFAULTS = {
-    "demo": dict(expert=None, seed=1000, episodes=1, descent_step=None, descend_from=None, env_kwargs={}),
+    "demo": dict(expert=None, seed=1000, episodes=1, trees=1, descent_step=None, descend_from=None, env_kwargs={}),
     "image_twin": dict(enabled=False, modalities=["fixed", "wrist"]),
     "examine": dict(first_seed=0, episodes=20),
     "calibrate": dict(enabled=True, quantile=None),
@@ -161,6 +163,10 @@ def resolve(raw: dict, task: str, scale: str, source: str) -> Recipe:
     sections = {name: {**SECTION_DEFAULTS.get(name, {}), **merged.get(name, {})} for name in SECTIONS}
     sections["train"].setdefault("model", {})
     recipe = Recipe(task=task, scale=scale, source=source, **sections)
+    trees, episodes = sections["demo"]["trees"], sections["demo"]["episodes"]
+    if trees < 1 or trees > episodes:  # a committed demo with fewer episodes is refused when its tree is sampled
+        raise RecipeError(f"{source} (scale {scale}): [demo] trees = {trees} needs 1 <= trees <= episodes "
+                          f"(= {episodes}): one progress tree per demo episode")
     try:  # the config classes check the values (a modality's name, an image size), once here for every scale
         recipe.sampler_config()
         recipe.train_config()

@@ -78,9 +78,10 @@ class TrainConfig:
 
 def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainConfig(), progress: bool = True,
                  negatives: Sequence[str] = (), init_checkpoint: Optional[str] = None,
-                 extra_header: Optional[dict] = None) -> str:
+                 extra_header: Optional[dict] = None, trees: Sequence[str] = ()) -> str:
     """Train on a progress tree; writes ``<out_dir>/drem.pt`` (and resumes from ``train_state.pt``).
 
+    ``trees``: more progress trees (other episodes of the same demo file) trained on beside the first, toward its goal;
     ``negatives``: hard-negative files added to the tree's nodes (``pipeline.policy_rounds``);
     ``init_checkpoint``: a reward checkpoint whose weights the model starts from (fine-tuning);
     ``extra_header``: entries added to the checkpoint's header.
@@ -90,6 +91,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     if config.threads:
         torch.set_num_threads(config.threads)
     data = TreeDataset(dataset_path, config.model)
+    data.add_trees(trees, config.model)
     data.add_negatives(negatives, config.model)
     torch.manual_seed(config.seed)
     device = torch.device("cuda" if config.device == "auto" and torch.cuda.is_available() else
@@ -104,7 +106,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     state_path = out / "train_state.pt"
     config_json = json.loads(json.dumps(asdict(config)))
     step = _resume(state_path, model, opt, gen, config_json, dataset_path, len(data.depth))
-    record = dict(train=config_json, dataset=str(dataset_path), sampler=data.header)
+    record = dict(train=config_json, dataset=str(dataset_path), trees=[str(t) for t in trees], sampler=data.header)
     (out / "config.json").write_text(json.dumps(record, indent=2))
 
     from torch.utils.tensorboard import SummaryWriter
@@ -144,7 +146,19 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
             _save_train_state(state_path, model, opt, gen, step, config_json, dataset_path, len(data.depth))
     bar.close()
     writer.close()
-    return export_reward(model, data, config, out / "drem.pt", extra_header)
+    forest = dict(trees=forest_record(dataset_path, trees)) if trees else {}
+    return export_reward(model, data, config, out / "drem.pt", {**forest, **(extra_header or {})})
+
+
+def forest_record(first: str, trees: Sequence[str]) -> list:
+    """Each tree a reward was trained on: its demo episode's seed and its node count (the header's ``trees``)."""
+    from drem_maniskill.pipeline.tree import tree_file
+
+    record = []
+    for path in (first, *trees):
+        with tree_file.open_tree(path) as f:
+            record.append(dict(episode_seed=tree_file.read_header(f).get("episode_seed"), nodes=len(f["depth"])))
+    return record
 
 
 def _load_weights(model: DREMModel, path: str, config) -> None:

@@ -6,6 +6,7 @@ import json
 import time
 
 import pytest
+import torch
 
 from drem_maniskill.drem.checkpoint import load_checkpoint
 from drem_maniskill.pipeline.build_reward import PUBLISHED, build_reward, check_same_recipe, demo_stage
@@ -67,3 +68,33 @@ def test_a_demo_of_another_task_is_refused(tmp_path):
 
 def _raw(task: str) -> dict:
     return read_toml(recipe_path(task), task)
+
+
+
+@pytest.mark.slow
+def test_a_forest_samples_a_tree_per_demo_episode_and_trains_on_all_of_them(tmp_path):
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.pipeline.dataset import TreeDataset
+    from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, merge
+
+    recipe = merge(GENERAL_DEFAULTS, {"demo": {"seed": 1000, "episodes": 2, "trees": 2},
+                                      "calibrate": {"enabled": False},
+                                      "scales": {"tiny": {"sampler": {"max_depth": 120}}}})
+    path = build_reward("PushCube-v1", scale="tiny", out=tmp_path, recipe=recipe)
+    header, _ = load_checkpoint(str(path))
+    model = ModelConfig(image_size=64, modalities=("fixed",))  # PushCube-v1 has one camera and no F/T
+    forest, second = (TreeDataset(str(tmp_path / name), model) for name in ("tree.h5", "tree_1.h5"))
+    assert [t["episode_seed"] for t in header["trees"]] == [1000, 1001]
+    assert [t["nodes"] for t in header["trees"]] == [forest.tree_nodes, second.tree_nodes]
+    start = forest.tree_nodes
+    forest.add_trees([str(tmp_path / "tree_1.h5")], model)
+    assert forest.tree_nodes == len(forest.depth) == sum(t["nodes"] for t in header["trees"])
+    # One goal for the whole forest: the first episode's (h(s_G) of the reward); the second tree's goal is a node.
+    assert forest.goal_index == 0 and int(forest.depth[start + second.goal_index]) == 0
+    assert torch.equal(forest.images["fixed"][start:], second.images["fixed"])
+
+
+def test_a_forest_needs_as_many_demo_episodes_as_trees():
+    with pytest.raises(RecipeError, match=r"trees = 3 needs 1 <= trees <= episodes \(= 2\)"):
+        load_recipe("PushCube-v1", recipe={"demo": {"episodes": 2, "trees": 3}})
+

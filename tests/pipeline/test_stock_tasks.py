@@ -75,6 +75,16 @@ def test_stock_checkpoint_drives_the_wrapper(stock_pipeline):
 
 
 @pytest.mark.slow
+def test_a_tree_of_another_task_cannot_join_a_forest(stock_pipeline, pipeline):
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.pipeline.dataset import TreeDataset
+
+    data = TreeDataset(stock_pipeline["tree"], ModelConfig(image_size=64, modalities=stock_pipeline["modalities"]))
+    with pytest.raises(ValueError, match="was sampled on PegInHole-v1, the first tree on PegInsertionSide-v1"):
+        data.add_trees([pipeline["tree"]], ModelConfig(image_size=64, modalities=stock_pipeline["modalities"]))
+
+
+@pytest.mark.slow
 def test_training_with_ft_on_a_tree_without_it_is_a_clear_error(stock_pipeline, tmp_path):
     from drem_maniskill.drem.model import ModelConfig
     from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
