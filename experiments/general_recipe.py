@@ -50,7 +50,9 @@ def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
     header, _ = load_checkpoint(str(work / "drem.pt"))
     return dict(task=task, variant=variant, recipe=recipe(variant), build_seconds=round(seconds),
                 value_order_spearman=quality["value_order_spearman"],
-                final_reward_auroc=quality["final_reward_auroc"], random_mean_reward=quality["random_mean_reward"],
+                final_reward_auroc=quality["final_reward_auroc"],
+                final_reward_auroc_expert_noisy=quality.get("final_reward_auroc_expert_noisy"),
+                random_mean_reward=quality["random_mean_reward"],
                 success_rate=quality["success_rate"], fit=header.get("fit"), rounds=header.get("rounds", []),
                 trees=header.get("trees", []))
 

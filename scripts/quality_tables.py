@@ -2,6 +2,8 @@
 
     .venv/bin/python scripts/quality_tables.py QUALITY_JSON [IMAGE_ONLY_QUALITY_JSON]
     (e.g. rewards/PegInHole-v1/quality.json rewards/PegInHole-v1/quality_image.json)
+    .venv/bin/python scripts/quality_tables.py --check CHECK_REWARD_JSON
+    (``check-reward``'s report, e.g. rewards/PegInHole-v1/check_reward.json)
 
 Prints the measures against their targets, the held positions, and with a second file the
 two checkpoints side by side. The numbers are read, never typed.
@@ -24,6 +26,8 @@ def measures(q: dict) -> list:
     return [
         ("value-order Spearman (reward vs time step, expert episodes)", _f(q["value_order_spearman"]), ">= 0.95"),
         ("AUROC of the final-step reward, success vs failure", _f(q["final_reward_auroc"]), ">= 0.98"),
+        ("AUROC of the final-step reward over the expert and the noisy expert only (ManiSkill's own tasks)",
+         _f(q.get("final_reward_auroc_expert_noisy")), ""),
         ("Random policy mean reward", _f(q["random_mean_reward"]), "<= 0.1"),
         (f"contact plateau: Align Success from first contact to insertion, over Direct Success's final "
          f"({plateau.get('episodes')} episodes)",
@@ -63,6 +67,11 @@ def tables(q: dict, image: dict | None = None) -> str:
 
 def main() -> None:
     """Command line."""
+    if sys.argv[1:2] == ["--check"] and len(sys.argv) == 3:
+        from drem_maniskill.pipeline.check_reward import markdown_table
+
+        print(markdown_table(json.load(open(sys.argv[2]))))
+        return
     files = [json.load(open(p)) for p in sys.argv[1:3]]
     if not files:
         sys.exit(__doc__)

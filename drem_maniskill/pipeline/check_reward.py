@@ -230,6 +230,31 @@ def check_reward(config: CheckConfig) -> dict:
     return report
 
 
+def markdown_table(report: dict) -> str:
+    """The report as a model card's table (every number read from ``report.json``)."""
+    v, sac = report["verdict"], report["sac"]
+
+    def fmt(x):
+        return "n/a" if x is None else f"{x:.3f}"
+
+    curve = "; ".join(f"{c['steps']:,}: {c['success_rate']:.0%}, {c['reward_per_step']:.2f}" for c in sac["curve"])
+    seeds = [e["seed"] for e in report["episodes"]]
+    rows = [
+        (f"SAC (state preset, seed {report['config']['seed']}) along its run: steps: success, R per step", curve),
+        (f"its final policy on held-out seeds {seeds[0]}-{seeds[-1]}: success, mean R per step",
+         f"{v['success_rate']:.0%}, {v['mean_reward_per_step']:.3f}"),
+        ("R over the last steps of its failed episodes", fmt(v["failed_end_reward"])),
+        ("scripted expert on the same seeds: success, R at its end",
+         f"{'n/a' if v['expert_success_rate'] is None else format(v['expert_success_rate'], '.0%')}, "
+         f"{fmt(v['expert_end_reward'])}"),
+        (f"paid failures (end R >= {fmt(v['paid_threshold'])}, {report['config']['paid_fraction']:g} x the expert's)",
+         f"{v['paid_failures']} of {len(report['episodes'])}"),
+        ("evaluations paid like success without any", ", ".join(f"{s:,}" for s in v["paid_evaluations"]) or "none"),
+        ("verdict", "EXPLOIT: the reward pays failures like success" if v["exploit"] else "no exploit found"),
+    ]
+    return "\n".join(["| check-reward | value |", "| --- | --- |", *(f"| {a} | {b} |" for a, b in rows)])
+
+
 def summary_lines(report: dict) -> list:
     """The report in a few lines, as the command prints it."""
     v = report["verdict"]

@@ -357,6 +357,12 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
     return result
 
 
+def _split_finals(curves: dict, policies: Sequence[str]) -> tuple:
+    """The final-step rewards of ``policies``' episodes: ``(successful ones, failed ones)``."""
+    finals = [(ep["rewards"][-1], ep["success"]) for p in policies for ep in curves.get(p, [])]
+    return [r for r, s in finals if s], [r for r, s in finals if not s]
+
+
 def _quality(env_id: str, checkpoint: str, seeds: Sequence[int], expert: list, curves: dict, held: dict) -> dict:
     """The ``quality.json`` measures of the expert episodes, the policies' ``curves`` and the ``held`` positions."""
     solved = [e for e in expert if e["success"]]
@@ -377,6 +383,9 @@ def _quality(env_id: str, checkpoint: str, seeds: Sequence[int], expert: list, c
         value_order_spearman_per_episode=[float(r) for r in rho],
         expert_success_rate=float(np.mean([e["success"] for e in expert])) if expert else float("nan"),
         final_reward_auroc=auroc([r for r, s in finals if s], [r for r, s in finals if not s]),
+        # Without random actions, whose failures end far from anything: the expert's successes against the noisy
+        # expert's failures, which end near the goal (ManiSkill's own tasks; NaN when one class is empty).
+        final_reward_auroc_expert_noisy=auroc(*_split_finals(curves, ("direct_success", "noisy_expert"))),
         random_mean_reward=random_mean,
         search_fail_contact_loss=dict(
             episodes_with_loss=len(drops),

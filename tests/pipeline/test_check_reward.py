@@ -7,7 +7,7 @@ import json
 import pytest
 
 from drem_maniskill.cli import main
-from drem_maniskill.pipeline.check_reward import CheckConfig, judge
+from drem_maniskill.pipeline.check_reward import CheckConfig, judge, markdown_table
 
 EXPERT = {0: dict(success=True, end_reward=1.0), 1: dict(success=True, end_reward=0.9)}  # ends at 0.95 on average
 
@@ -44,6 +44,21 @@ def test_an_evaluation_paid_without_success_is_an_exploit():
 def test_a_run_too_short_to_learn_is_refused():
     with pytest.raises(ValueError, match="must exceed --learning-starts"):
         CheckConfig(steps=500, learning_starts=1000)
+
+
+def test_the_model_card_table_reads_the_report():
+    config = CheckConfig()
+    rows = [dict(_row(False, 0.9), seed=10000), dict(_row(True, 1.0), seed=10001)]
+    curve = [dict(steps=0, success_rate=0.0, reward_per_step=0.99), dict(steps=2500, success_rate=0.5,
+                                                                         reward_per_step=0.8)]
+    report = dict(verdict=judge(rows, EXPERT, config, curve), sac=dict(curve=curve), episodes=rows,
+                  config=dict(seed=3, paid_fraction=0.8))
+    table = markdown_table(report)
+    assert "| SAC (state preset, seed 3) along its run: steps: success, R per step | 0: 0%, 0.99; 2,500: 50%, 0.80 |" \
+        in table
+    assert "held-out seeds 10000-10001: success, mean R per step | 50%, 0.475 |" in table
+    assert "| paid failures (end R >= 0.760, 0.8 x the expert's) | 1 of 2 |" in table
+    assert "| evaluations paid like success without any | 0 |" in table and "| verdict | EXPLOIT" in table
 
 
 # 600 steps: 100 gradient steps after 500 random ones, evaluations at 0 and 600.

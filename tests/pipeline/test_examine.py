@@ -82,3 +82,17 @@ def test_face_lead_is_the_rise_towards_the_opening_within_each_episode_on_the_fa
     # Another reward's scale and sign: the same fraction still to go.
     assert face_lead(rows(lambda mm: 0.8), "r", start=-2.0, inserted=1.0)["to_go"] == pytest.approx(0.2 / 3, abs=0.01)
     assert face_lead(rows(lambda mm: 0.8)[-2:], "r", 0.0, 1.0)["lead"] is None
+
+
+def test_the_experts_auroc_leaves_random_actions_out():
+    from drem_maniskill.pipeline.examine import _split_finals, auroc
+
+    def ep(final, success):
+        return dict(rewards=[0.0, final], success=success)
+
+    # Random actions fail far from the goal and are easy to tell apart; the noisy expert's failure at 0.9 is not.
+    curves = dict(direct_success=[ep(0.8, True), ep(0.95, True)], noisy_expert=[ep(0.9, False), ep(0.85, True)],
+                  random=[ep(0.1, False), ep(0.0, False)])
+    assert _split_finals(curves, ("direct_success", "noisy_expert")) == ([0.8, 0.95, 0.85], [0.9])
+    assert auroc(*_split_finals(curves, ("direct_success", "noisy_expert"))) == pytest.approx(1 / 3)
+    assert auroc(*_split_finals(curves, tuple(curves))) == pytest.approx(7 / 9)
