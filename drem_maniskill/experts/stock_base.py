@@ -36,6 +36,10 @@ def _rot_error(q_target: torch.Tensor, q_current: torch.Tensor) -> torch.Tensor:
     return quaternion_to_axis_angle(q)
 
 
+NOISY_EXPERT_SIGMA = 0.1
+"""The noisy expert's action noise unless an expert sets its own ``noisy_sigma``."""
+
+
 # ----------------------------------------------------------------------------- experts
 class _StockExpert:
     """Base: batched per-env phase and phase clock, reset at each env's first step, TCP servo."""
@@ -44,6 +48,7 @@ class _StockExpert:
     ki = 0.3  # integral gain per step of the fine phases
     fine_from = 5  # first phase with integral action
     i_zone = float("inf")  # m; the integral only accumulates while the position error is below this
+    noisy_sigma = NOISY_EXPERT_SIGMA  # the noisy_expert's N(0, sigma) on the normalised arm actions
 
     def __init__(self, env, seed: int = 0, action_noise: float = 0.0):
         self.env = env.unwrapped

@@ -48,6 +48,8 @@ class PushCubeExpert(_StockExpert):
     hover = 0.07  # m TCP height while going behind the cube: the closed fingertips clear its 4 cm top
     push_speed = 0.5  # action units: hitting the cube at full speed kicks it off the fingers
     goal_offset = 0.05  # m short of the goal centre; success needs < goal_radius (0.1 m) in xy
+    # 0.1 never fails here (20 of 20 seeds), 0.3 solves 11 of 20: the examination needs failures near the goal.
+    noisy_sigma = 0.3
 
     def __init__(self, env, seed: int = 0, action_noise: float = 0.0):
         super().__init__(env, seed=seed, action_noise=action_noise)

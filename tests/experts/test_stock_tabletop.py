@@ -51,3 +51,18 @@ def test_tabletop_expert_restarts_at_each_reset(env_id, steps, phase):
         torch.testing.assert_close(runs[0], runs[1], atol=1e-5, rtol=0)
     finally:
         env.close()
+
+
+@pytest.mark.slow
+def test_the_noisy_pushcube_expert_fails_on_some_seeds_and_succeeds_on_others():
+    """The examination's expert-and-noisy AUROC needs both: at N(0, 0.1) the push never fails, at 0.3 it does."""
+    env = gym.make("PushCube-v1", obs_mode="state", control_mode="pd_ee_delta_pose")
+    try:
+        def solved(policy):
+            return [bool(rollout(env, policy, seed=s, steps=50).success) for s in range(8)]
+
+        noisy = solved(get_policy("noisy_expert", env, seed=0))
+        assert any(noisy) and not all(noisy), noisy
+        assert all(solved(STOCK_EXPERTS["PushCube-v1"](env, seed=0, action_noise=0.1)))
+    finally:
+        env.close()
