@@ -16,6 +16,9 @@ trial, not vision), rolls its policy out on held-out seeds and the scripted expe
   ``exploit_share`` of the episodes.
 
 Rewards are reported as the paper's ``R`` (``drem_form="paper"``) whatever form the SAC run trained on.
+
+With ``run`` the check trains nothing: it examines a finished ``train-policy`` run of any reward and preset (a
+comparison's run whose return is high and success low), under that run's own reward and inputs.
 """
 
 from __future__ import annotations
@@ -65,7 +68,10 @@ class CheckConfig:
     exploit_share: float = 0.3
     """The reward has an exploit when paid failures are at least this share of the episodes."""
     out: Optional[str] = None
-    """Output dir; None: outputs/check_reward/<task>/<checkpoint name>."""
+    """Output dir; None: outputs/check_reward/<task>/<checkpoint name> (``<run>/check`` with ``run``)."""
+    run: Optional[str] = None
+    """A finished ``train-policy`` run (any reward, any preset) to examine instead of training one: its
+    ``config.json`` gives the task, the reward and the inputs, its last checkpoint the policy."""
 
     def __post_init__(self):
         if self.steps <= self.learning_starts:
@@ -158,6 +164,23 @@ def expert_ends(run: RLConfig, seeds: Sequence[int]) -> Optional[dict]:
         env.close()
 
 
+def given_run(config: CheckConfig) -> tuple:
+    """``(run config, its DREM checkpoint or None, the report's folder)`` of ``config.run``, a finished run."""
+    from drem_maniskill.rl.rewards import reward_checkpoint
+    from drem_maniskill.rl.train_policy import latest_checkpoint
+
+    folder = Path(config.run)
+    if not (folder / "config.json").is_file():
+        raise FileNotFoundError(f"{folder} is not a train-policy run (no config.json); pass a run folder such as "
+                                f"outputs/rl_image/PegInHole-v1/drem/seed0")
+    run = dataclasses.replace(RLConfig.load(folder / "config.json"), out=str(folder))
+    if latest_checkpoint(run.run_dir) is None:
+        raise FileNotFoundError(f"{folder} holds no policy checkpoint (a run kept without its checkpoints); "
+                                f"rerun it with train-policy to examine its policy")
+    out = Path(config.out) if config.out else folder / "check"
+    return run, reward_checkpoint(run.reward, run.task, run.reward_checkpoint), out
+
+
 def run_curve(run: RLConfig) -> list:
     """The SAC run's evaluations as ``{steps, success_rate, reward_per_step}`` (``R``, whatever form it trained on).
 
@@ -166,8 +189,10 @@ def run_curve(run: RLConfig) -> list:
     """
     from drem_maniskill.rl.train_policy import read_eval_csv
 
+    from drem_maniskill.rl.rewards import reward_spec
+
     horizon = max_episode_steps(run.task)
-    shift = 1.0 if run.drem_form_used == "shifted" else 0.0
+    shift = 1.0 if reward_spec(run.reward).checkpoint and run.drem_form_used == "shifted" else 0.0
     return [dict(steps=int(r["steps"]), success_rate=float(r["success_rate"]),
                  reward_per_step=round(float(r["mean_return"]) / horizon + shift, 4))
             for r in read_eval_csv(run.run_dir / "eval.csv")]
@@ -203,12 +228,16 @@ def check_reward(config: CheckConfig) -> dict:
     from drem_maniskill.rl.run_env import make_eval_env
     from drem_maniskill.rl.train_policy import file_sha256, train_policy
 
-    task = check_env_id(config.task)
-    checkpoint = resolve_checkpoint(task, config.checkpoint)
-    out = Path(config.out) if config.out else Path("outputs/check_reward") / task / checkpoint.stem
+    if config.run:
+        run, checkpoint, out = given_run(config)
+        task, steps = run.task, run_curve(run)[-1]["steps"]
+    else:
+        task = check_env_id(config.task)
+        checkpoint = resolve_checkpoint(task, config.checkpoint)
+        out = Path(config.out) if config.out else Path("outputs/check_reward") / task / checkpoint.stem
+        run = policy_config(config, checkpoint, out)
+        steps = train_policy(run)["steps"]
     out.mkdir(parents=True, exist_ok=True)
-    run = policy_config(config, checkpoint, out)
-    trained = train_policy(run)
     seeds = [config.eval_seed + i for i in range(config.episodes)]
     expert = expert_ends(run, seeds)
     act = trained_policy(run)
@@ -221,8 +250,9 @@ def check_reward(config: CheckConfig) -> dict:
     finally:
         env.close()
     curve = run_curve(run)
-    report = dict(task=task, checkpoint=str(checkpoint), sha256=file_sha256(checkpoint),
-                  sac=dict(steps=trained["steps"], run_dir=str(run.run_dir), curve=curve),
+    report = dict(task=task, reward=run.reward, checkpoint=None if checkpoint is None else str(checkpoint),
+                  sha256=None if checkpoint is None else file_sha256(checkpoint),
+                  sac=dict(steps=steps, preset=run.preset, seed=run.seed, run_dir=str(run.run_dir), curve=curve),
                   verdict=judge(rows, expert, config, curve), episodes=rows, config=dataclasses.asdict(config))
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=2) + "\n")
@@ -240,7 +270,8 @@ def markdown_table(report: dict) -> str:
     curve = "; ".join(f"{c['steps']:,}: {c['success_rate']:.0%}, {c['reward_per_step']:.2f}" for c in sac["curve"])
     seeds = [e["seed"] for e in report["episodes"]]
     rows = [
-        (f"SAC (state preset, seed {report['config']['seed']}) along its run: steps: success, R per step", curve),
+        (f"SAC ({sac.get('preset', 'state')} preset, seed {sac.get('seed', report['config']['seed'])}) along its run: "
+         "steps: success, R per step", curve),
         (f"its final policy on held-out seeds {seeds[0]}-{seeds[-1]}: success, mean R per step",
          f"{v['success_rate']:.0%}, {v['mean_reward_per_step']:.3f}"),
         ("R over the last steps of its failed episodes", fmt(v["failed_end_reward"])),
@@ -264,7 +295,9 @@ def summary_lines(report: dict) -> list:
 
     curve = "; ".join(f"{c['steps']}: success {c['success_rate']:.2f}, R {c['reward_per_step']:.3f}"
                       for c in report["sac"]["curve"])
-    lines = [f"{report['task']}: {report['checkpoint']} after {report['sac']['steps']} SAC steps (state preset)",
+    sac = report["sac"]
+    lines = [f"{report['task']}: {report.get('reward', 'drem')} ({report['checkpoint'] or 'no checkpoint'}) after "
+             f"{sac['steps']} SAC steps ({sac.get('preset', 'state')} preset)",
              f"  along the run (steps: success, mean R per step): {curve}",
              f"  policy: success {v['success_rate']:.2f}, mean R per step {v['mean_reward_per_step']:.3f}; "
              f"failed episodes end at R {fmt(v['failed_end_reward'])}",

@@ -61,6 +61,17 @@ def test_the_model_card_table_reads_the_report():
     assert "| evaluations paid like success without any | 0 |" in table and "| verdict | EXPLOIT" in table
 
 
+def test_a_folder_that_is_not_a_finished_run_is_refused(tmp_path):
+    from drem_maniskill.pipeline.check_reward import check_reward
+    from drem_maniskill.rl.config import RLConfig
+
+    with pytest.raises(FileNotFoundError, match="is not a train-policy run"):
+        check_reward(CheckConfig(run=str(tmp_path)))
+    RLConfig.preset("image", task="PegInHole-v1", reward="sparse", out=str(tmp_path)).save(tmp_path / "config.json")
+    with pytest.raises(FileNotFoundError, match="holds no policy checkpoint"):
+        check_reward(CheckConfig(run=str(tmp_path)))
+
+
 # 600 steps: 100 gradient steps after 500 random ones, evaluations at 0 and 600.
 SMALL = ["--steps", "600", "--learning-starts", "500", "--eval-every", "600", "--eval-episodes", "1"]
 
@@ -86,3 +97,12 @@ def test_a_reward_that_teaches_reports_no_exploit(tmp_path, capsys):
     assert not v["exploit"] and "no exploit found" in out, out
     assert v["expert_success_rate"] == 1 and v["paid_failures"] == 0
     assert "part tip" in out and "m from the expert's end" in out  # the held peg: where its tip is in the socket
+
+    # The same run examined again as a finished run: nothing trained, the same policy on the same seeds.
+    first = json.loads((tmp_path / "report.json").read_text())
+    assert main(["check-reward", "--run", str(tmp_path / "sac"), "--episodes", "2", "--out", str(tmp_path / "again")]) \
+        == 0
+    again = json.loads((tmp_path / "again" / "report.json").read_text())
+    assert again["sac"]["steps"] == 600 and again["sac"]["preset"] == "state" and again["reward"] == "drem"
+    assert [(e["success"], round(e["end_reward"], 5)) for e in again["episodes"]] == \
+        [(e["success"], round(e["end_reward"], 5)) for e in first["episodes"]]
