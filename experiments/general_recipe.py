@@ -31,6 +31,7 @@ VARIANTS = {
     "m50": {"sampler": {"num_children": 50}},
     "rounds3": {"rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
     "trees5": {"demo": {"episodes": 5, "trees": 5}},
+    "m500": {"sampler": {"num_children": 500}},  # trees5's node count in one tree: more data, one placement
 }
 RESULTS = Path("docs/results/general_recipe")
 
