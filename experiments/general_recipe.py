@@ -32,6 +32,8 @@ VARIANTS = {
     "rounds3": {"rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
     "trees5": {"demo": {"episodes": 5, "trees": 5}},
     "m500": {"sampler": {"num_children": 500}},  # trees5's node count in one tree: more data, one placement
+    "trees5_rounds3": {"demo": {"episodes": 5, "trees": 5},
+                       "rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
 }
 RESULTS = Path("docs/results/general_recipe")
 
@@ -58,6 +60,20 @@ def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
                 trees=header.get("trees", []))
 
 
+def reuse_trees(work: Path, source) -> None:
+    """Start a variant that only adds stages (``trees5_rounds3``) from the demo, trees and reward its prefix
+    variant built (``trees5``), so both measure the same trees."""
+    import shutil
+
+    if source is None or work.exists() or not (source / "reward" / "drem.pt").is_file():
+        return
+    work.mkdir(parents=True)
+    for name in ("expert", "reward"):
+        shutil.copytree(source / name, work / name)
+    for tree in source.glob("tree*.h5"):
+        shutil.copyfile(tree, work / tree.name)
+
+
 def main() -> None:
     """Build every task x variant and write its summary."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -70,6 +86,7 @@ def main() -> None:
     for task in args.tasks:
         for variant in args.variants:
             work = Path(args.out) / task / variant
+            reuse_trees(work, Path(args.out) / task / variant.split("_")[0] if "_" in variant else None)
             start = time.time()
             build_reward(task, scale="full", out=work, recipe=recipe(variant))
             result = summary(task, variant, work, time.time() - start)
