@@ -384,8 +384,10 @@ def _quality(env_id: str, checkpoint: str, seeds: Sequence[int], expert: list, c
         expert_success_rate=float(np.mean([e["success"] for e in expert])) if expert else float("nan"),
         final_reward_auroc=auroc([r for r, s in finals if s], [r for r, s in finals if not s]),
         # Without random actions, whose failures end far from anything: the expert's successes against the noisy
-        # expert's failures, which end near the goal (ManiSkill's own tasks; NaN when one class is empty).
-        final_reward_auroc_expert_noisy=auroc(*_split_finals(curves, ("direct_success", "noisy_expert"))),
+        # expert's failures, which end near the goal (ManiSkill's own tasks, which have a noisy expert; NaN when one
+        # class is empty).
+        final_reward_auroc_expert_noisy=auroc(*_split_finals(curves, ("direct_success", "noisy_expert")))
+        if "noisy_expert" in curves else None,
         random_mean_reward=random_mean,
         search_fail_contact_loss=dict(
             episodes_with_loss=len(drops),
