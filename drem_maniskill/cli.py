@@ -247,7 +247,7 @@ def _cmd_check_reward(args) -> None:
 
     report = check_reward(apply_overrides(CheckConfig(), overrides_from_args(args, CheckConfig)))
     print("\n".join(summary_lines(report)))
-    print(f"report: {Path(report['sac']['run_dir']).parent / 'report.json'}")
+    print(f"report: {Path(report['out']) / 'report.json'}")
 
 
 def _add_check_reward(sub) -> None:

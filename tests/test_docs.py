@@ -192,3 +192,16 @@ def test_every_docs_picture_is_shown_by_a_page():
     pictures = sorted((ROOT / "docs" / "images").rglob("*.png"))
     unshown = [str(p.relative_to(ROOT)) for p in pictures if p.name not in text]
     assert not unshown, f"pictures no page shows (link them or remove them): {unshown}"
+
+
+REPORTS = sorted((ROOT / "rewards").glob("*/check_reward*.json"))
+
+
+@pytest.mark.parametrize("report", REPORTS, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_each_exploit_check_report_beside_a_model_card_is_shown_in_it(report):
+    # The card's table is the report's, so a rerun check that changes a number must change the card too.
+    from drem_maniskill.pipeline.check_reward import markdown_table
+
+    card = (report.parent / "MODEL_CARD.md").read_text()
+    assert markdown_table(json.loads(report.read_text())) in card, report
+    assert report.name in card, report

@@ -102,6 +102,7 @@ def test_a_reward_that_teaches_reports_no_exploit(tmp_path, capsys):
     first = json.loads((tmp_path / "report.json").read_text())
     assert main(["check-reward", "--run", str(tmp_path / "sac"), "--episodes", "2", "--out", str(tmp_path / "again")]) \
         == 0
+    assert f"report: {tmp_path / 'again' / 'report.json'}" in capsys.readouterr().out
     again = json.loads((tmp_path / "again" / "report.json").read_text())
     assert again["sac"]["steps"] == 600 and again["sac"]["preset"] == "state" and again["reward"] == "drem"
     assert [(e["success"], round(e["end_reward"], 5)) for e in again["episodes"]] == \
