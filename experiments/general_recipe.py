@@ -34,6 +34,10 @@ VARIANTS = {
     "m500": {"sampler": {"num_children": 500}},  # trees5's node count in one tree: more data, one placement
     "trees5_rounds3": {"demo": {"episodes": 5, "trees": 5},
                        "rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
+    # Each depth seeded with the demo's own state: the objects where the demo had them (a pushed cube included).
+    "anchored5": {"demo": {"episodes": 5, "trees": 5}, "sampler": {"seeds_from_demo": True}},
+    "anchored5_rounds3": {"demo": {"episodes": 5, "trees": 5}, "sampler": {"seeds_from_demo": True},
+                          "rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
 }
 RESULTS = Path("docs/results/general_recipe")
 

@@ -487,3 +487,69 @@ def test_a_partial_tree_resumes_with_more_workers_or_a_new_phase_but_not_with_ot
     assert resumable(flat, header()) and resumable(flat, header(side_depth=8))
     assert not resumable(flat, header(face_depth=4))
     assert not resumable(dict(flat, env_id="PegInHole-v1"), header())
+
+
+def _cube_positions(tree_path: str, env_kwargs: dict) -> dict:
+    """The cube's position in each depth's stored seed (the chosen child), by depth, read from its flat state."""
+    from drem_maniskill.envs.adapter import adapter_for
+
+    env = gym.make("PushCube-v1", **env_kwargs)
+    try:
+        env.reset(seed=0)
+        adapter = adapter_for(env)
+        with h5py.File(tree_path, "r") as f:
+            return {int(name.split("_")[1]): adapter.unflatten(f[f"seeds/{name}/state"][()])["actors"]["cube"][0, :3]
+                    .numpy() for name in f["seeds"] if name.startswith("depth_") and name != "depth_0"}
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_seeds_from_the_demo_keep_a_pushed_cube_where_the_demo_had_it_and_the_papers_chain_does_not(tmp_path):
+    """Random actions cannot pull a pushed cube back: the paper's chain holds the cube at the goal at every depth."""
+    from drem_maniskill.experts.recording import record_expert
+    from drem_maniskill.pipeline.tree.expert import load_expert
+    from drem_maniskill.utils.state import state_at
+
+    rec = record_expert("PushCube-v1", str(tmp_path / "expert"), seeds=[1000])
+    expert = load_expert(rec.h5_path, 0)
+    demo_cube = np.stack([np.asarray(state_at(expert.states, t)["actors"]["cube"]).reshape(-1)[:3]
+                          for t in range(expert.length)])
+    goal, start = demo_cube[-1], demo_cube[0]
+    assert np.linalg.norm(goal - start) > 0.05  # the demo pushes the cube
+
+    cubes = {}
+    for anchored in (False, True):
+        config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, seeds_from_demo=anchored)
+        tree = backward_sample(rec.h5_path, str(tmp_path / f"tree_{anchored}.h5"), config, progress=False)
+        cubes[anchored] = _cube_positions(tree, expert.env_kwargs)
+
+    # Interrupted and resumed, the anchored tree is the same tree: the resumed seed is the demo's state again, not
+    # the chosen child (whose hand is a random step, centimetres here, off the demo's). Within PhysX's contact cache,
+    # which a saved state does not hold (under a millimetre).
+    config = SamplerConfig.preset("tiny", num_children=4, max_depth=5, seeds_from_demo=True)
+    with pytest.raises(NoStartRegionError):
+        backward_sample(rec.h5_path, str(tmp_path / "resumed.h5"), config, progress=False)
+    config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, seeds_from_demo=True)
+    resumed = backward_sample(rec.h5_path, str(tmp_path / "resumed.h5"), config, progress=False)
+    with h5py.File(resumed, "r") as a, h5py.File(tmp_path / "tree_True.h5", "r") as b:
+        assert a["tcp_pose"].shape == b["tcp_pose"].shape
+        np.testing.assert_allclose(a["tcp_pose"][()], b["tcp_pose"][()], atol=2e-3)
+
+    deepest = max(cubes[True])
+    # Anchored: a child at depth d is one random step from the demo's state d - 1 steps before its goal.
+    for d, cube in cubes[True].items():
+        t = max(expert.length - 1 - (d - 1), 0)
+        assert np.linalg.norm(cube - demo_cube[t]) < 0.02, (d, cube, demo_cube[t])
+    assert np.linalg.norm(cubes[True][deepest] - start) < 0.02
+    # The paper's chain: the hand goes back to the start, the cube stays at the goal.
+    far = cubes[False][max(cubes[False])]
+    assert np.linalg.norm(far - goal) < np.linalg.norm(far - start)
+
+
+def test_seeds_from_the_demo_keep_one_seed_per_depth():
+    with pytest.raises(ValueError, match="seeds_from_demo keeps one seed per depth"):
+        SamplerConfig(num_seeds=3, seeds_from_demo=True)
+    assert SamplerConfig.from_dict({"seeds_from_demo": True}).to_dict()["seeds_from_demo"] is True
+    # A tree sampled one way does not resume the other way.
+    assert not SamplerConfig(seeds_from_demo=True).can_resume(SamplerConfig())

@@ -22,7 +22,7 @@ import math
 from dataclasses import asdict
 from functools import partial as bind
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import h5py
 import numpy as np
@@ -63,8 +63,13 @@ def action_scale_at(depth: int, expert_ee: np.ndarray, config: SamplerConfig, tr
 
 
 def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_ee: np.ndarray, depth: int,
-                  seeds: list, seed_nodes: list, progress: bool = True) -> int:
-    """The paper's loop, from the seeds at ``depth`` until enough seeds are in the start region; returns that depth."""
+                  seeds: list, seed_nodes: list, progress: bool = True,
+                  demo_seed: Optional[Callable[[int], dict]] = None) -> int:
+    """The paper's loop, from the seeds at ``depth`` until enough seeds are in the start region; returns that depth.
+
+    With ``demo_seed`` (``SamplerConfig.seeds_from_demo``) the next seed is ``demo_seed(depth)``, the demo's state,
+    while the chosen child stays the recorded parent of its children.
+    """
     goal = len(expert_ee) - 1
     needed = math.ceil(config.num_seeds * config.delta)
     gripper_weight = config.gripper_weight if pool.sampler.adapter.gripper_idx else 0.0
@@ -83,7 +88,7 @@ def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_
         chosen = np.argsort(dist, kind="stable")[: config.num_seeds]
         depth += 1
         seed_nodes = tree_file.append_depth(partial, merged, depth, chosen)
-        seeds = tree_file.seeds_at(merged, chosen)
+        seeds = tree_file.seeds_at(merged, chosen) if demo_seed is None else [demo_seed(depth)]
         bar.update(1)
     bar.close()
     return depth
@@ -108,8 +113,11 @@ def backward_sample(expert_path: str, out_path: str, config: Optional[SamplerCon
         sampler.expert_first_ee = expert_ee[0]
         pool.start_workers(expert.env_id, expert.env_kwargs, expert.episode_seed, expert_ee[0], config.start_radius)
         depth, seeds, nodes = _open_or_resume(partial, expert, expert_ee, config, sampler)
+        demo_seed = bind(_demo_seed, expert, sampler) if config.seeds_from_demo else None
+        if demo_seed is not None and depth > 0:
+            seeds = [demo_seed(depth)]  # the file holds the chosen children; the seed was the demo's state
         if tree_file.start_depth(partial) is None:
-            depth = backward_loop(partial, pool, config, expert_ee, depth, seeds, nodes, progress)
+            depth = backward_loop(partial, pool, config, expert_ee, depth, seeds, nodes, progress, demo_seed)
         context = PhaseContext(
             partial, pool, config, tree_file.mark_start_depth(partial, depth),
             bind(action_scale_at, expert_ee=expert_ee, config=config, translation_limit=sampler.translation_limit),
@@ -178,6 +186,15 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
     root, flat, in_region = _goal_node(expert, expert_ee, sampler)
     tree_file.create(partial, header, expert.first_obs, expert.last_obs, expert_ee, root)
     return 0, [dict(state=flat[0], in_start_region=in_region)], [0]
+
+
+def _demo_seed(expert: ExpertTrajectory, sampler: ChildSampler, depth: int) -> dict:
+    """The seed at ``depth`` under ``seeds_from_demo``: the demo's state ``depth`` steps before its goal (its first
+    state beyond), flat, with its start-region flag."""
+    t = max(expert.length - 1 - depth, 0)
+    sampler.adapter.set_state(broadcast_state(state_at(expert.states, t), sampler.n))
+    flat = sampler.adapter.flatten(sampler.adapter.get_state())[:1].cpu().numpy()
+    return dict(state=flat[0], in_start_region=bool(sampler.in_start_region()[0]))
 
 
 def _goal_node(expert: ExpertTrajectory, expert_ee: np.ndarray, sampler: ChildSampler) -> tuple:

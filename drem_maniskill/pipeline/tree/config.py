@@ -61,10 +61,17 @@ class SamplerConfig:
     randomize_placement: bool = True
     """Each child's scene is moved as a whole to a freshly drawn socket placement (our tasks; not in the paper, whose
     hole stays put): a tree of one placement teaches a reward that reads where the socket is."""
+    seeds_from_demo: bool = False
+    """Each depth's seed is the demo's own state that many steps before the goal, not the chosen child (``N = 1``
+    only; beyond the paper): the objects stay where the demo had them. For tasks whose random actions cannot carry an
+    object back (a pushed cube stays at the goal), where the paper's chain holds only the hand's progress."""
     phases: dict = field(default_factory=dict)
     """Settings of every extra phase by name (``phases.PHASES``); a phase runs when its size field is above 0."""
 
     def __post_init__(self):
+        if self.seeds_from_demo and self.num_seeds != 1:
+            raise ValueError(f"seeds_from_demo keeps one seed per depth, the demo's state; got num_seeds="
+                             f"{self.num_seeds}: set num_seeds to 1 or turn seeds_from_demo off")
         unknown = [name for name in self.phases if name not in PHASES]
         if unknown:
             raise ValueError(f"unknown sampler phase {unknown[0]!r}; valid ones: {list(PHASES)}")
