@@ -537,6 +537,8 @@ def test_seeds_from_the_demo_keep_a_pushed_cube_where_the_demo_had_it_and_the_pa
         np.testing.assert_allclose(a["tcp_pose"][()], b["tcp_pose"][()], atol=2e-3)
 
     deepest = max(cubes[True])
+    with h5py.File(tmp_path / "tree_True.h5", "r") as f:  # its nodes reach the start region, as training needs
+        assert f["in_start_region"][()].any() and f["in_start_region"][f["is_seed"][()]][-1]
     # Anchored: a child at depth d is one random step from the demo's state d - 1 steps before its goal.
     for d, cube in cubes[True].items():
         t = max(expert.length - 1 - (d - 1), 0)

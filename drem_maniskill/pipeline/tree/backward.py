@@ -67,8 +67,10 @@ def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_
                   demo_seed: Optional[Callable[[int], dict]] = None) -> int:
     """The paper's loop, from the seeds at ``depth`` until enough seeds are in the start region; returns that depth.
 
-    With ``demo_seed`` (``SamplerConfig.seeds_from_demo``) the next seed is ``demo_seed(depth)``, the demo's state,
-    while the chosen child stays the recorded parent of its children.
+    With ``demo_seed`` (``SamplerConfig.seeds_from_demo``) the children at ``depth`` are drawn from
+    ``demo_seed(depth)``, the demo's state, instead of from ``seeds``; ``seeds`` are still the chosen children, whose
+    start-region flags end the loop (the tree's nodes, as in the paper) and which stay their children's recorded
+    parents.
     """
     goal = len(expert_ee) - 1
     needed = math.ceil(config.num_seeds * config.delta)
@@ -80,7 +82,8 @@ def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_
                 f"backward sampling reached max_depth={config.max_depth} with {in_region}/{len(seeds)} seeds in the "
                 f"start region (needed {needed}); raise --max-depth or --action-scale, or check the expert")
         scale = action_scale_at(depth, expert_ee, config, pool.sampler.translation_limit)
-        merged = pool.children_of(seeds, seed_nodes, depth, config.num_children, scale)
+        parents = seeds if demo_seed is None else [demo_seed(depth)]
+        merged = pool.children_of(parents, seed_nodes, depth, config.num_children, scale)
         bar.set_postfix(children=config.num_children * len(seeds), in_start=in_region)
         # Expert-guided progress measure: the closest end-effector states to the expert's d + 1 steps back.
         dist = pose_distance(merged["ee"], expert_ee[max(goal - (depth + 1), 0)], config.rotation_weight,
@@ -88,7 +91,7 @@ def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_
         chosen = np.argsort(dist, kind="stable")[: config.num_seeds]
         depth += 1
         seed_nodes = tree_file.append_depth(partial, merged, depth, chosen)
-        seeds = tree_file.seeds_at(merged, chosen) if demo_seed is None else [demo_seed(depth)]
+        seeds = tree_file.seeds_at(merged, chosen)
         bar.update(1)
     bar.close()
     return depth
@@ -114,8 +117,6 @@ def backward_sample(expert_path: str, out_path: str, config: Optional[SamplerCon
         pool.start_workers(expert.env_id, expert.env_kwargs, expert.episode_seed, expert_ee[0], config.start_radius)
         depth, seeds, nodes = _open_or_resume(partial, expert, expert_ee, config, sampler)
         demo_seed = bind(_demo_seed, expert, sampler) if config.seeds_from_demo else None
-        if demo_seed is not None and depth > 0:
-            seeds = [demo_seed(depth)]  # the file holds the chosen children; the seed was the demo's state
         if tree_file.start_depth(partial) is None:
             depth = backward_loop(partial, pool, config, expert_ee, depth, seeds, nodes, progress, demo_seed)
         context = PhaseContext(
@@ -189,12 +190,11 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
 
 
 def _demo_seed(expert: ExpertTrajectory, sampler: ChildSampler, depth: int) -> dict:
-    """The seed at ``depth`` under ``seeds_from_demo``: the demo's state ``depth`` steps before its goal (its first
-    state beyond), flat, with its start-region flag."""
+    """The state the children at ``depth`` start from under ``seeds_from_demo``: the demo's ``depth`` steps before
+    its goal (its first state beyond), flat."""
     t = max(expert.length - 1 - depth, 0)
     sampler.adapter.set_state(broadcast_state(state_at(expert.states, t), sampler.n))
-    flat = sampler.adapter.flatten(sampler.adapter.get_state())[:1].cpu().numpy()
-    return dict(state=flat[0], in_start_region=bool(sampler.in_start_region()[0]))
+    return dict(state=sampler.adapter.flatten(sampler.adapter.get_state())[0].cpu().numpy())
 
 
 def _goal_node(expert: ExpertTrajectory, expert_ee: np.ndarray, sampler: ChildSampler) -> tuple:

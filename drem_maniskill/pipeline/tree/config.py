@@ -62,9 +62,10 @@ class SamplerConfig:
     """Each child's scene is moved as a whole to a freshly drawn socket placement (our tasks; not in the paper, whose
     hole stays put): a tree of one placement teaches a reward that reads where the socket is."""
     seeds_from_demo: bool = False
-    """Each depth's seed is the demo's own state that many steps before the goal, not the chosen child (``N = 1``
-    only; beyond the paper): the objects stay where the demo had them. For tasks whose random actions cannot carry an
-    object back (a pushed cube stays at the goal), where the paper's chain holds only the hand's progress."""
+    """Each depth's children start from the demo's own state that many steps before the goal, not from the chosen
+    child (``N = 1`` only; beyond the paper): the objects stay where the demo had them. For tasks whose random
+    actions cannot carry an object back (a pushed cube stays at the goal), where the paper's chain holds only the
+    hand's progress."""
     phases: dict = field(default_factory=dict)
     """Settings of every extra phase by name (``phases.PHASES``); a phase runs when its size field is above 0."""
 
