@@ -6,13 +6,12 @@ runs ``build_reward`` for every task x variant into ``<out>/<task>/<variant>`` (
 and writes the examination's measures beside the recipe to ``docs/results/general_recipe/<task>/<variant>.json``.
 
     .venv/bin/python experiments/general_recipe.py --tasks PushCube-v1 StackCube-v1 --variants base
-    .venv/bin/python experiments/general_recipe.py --tasks PlugCharger-v1 --variants base rounds3
+    .venv/bin/python experiments/general_recipe.py --tasks PlugCharger-v1 --variants base three_rounds
 """
 
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import time
 from pathlib import Path
@@ -24,29 +23,37 @@ BASE = {
     "examine": {"first_seed": 0, "episodes": 20},
     "calibrate": {"enabled": False},
 }
+FIVE_TREES = {"demo": {"episodes": 5, "trees": 5}}
+# Each depth's children from the demo's own state: the objects where the demo had them (a pushed cube included).
+DEMO_SEEDS = {"sampler": {"seeds_from_demo": True}}
+THREE_ROUNDS = {"rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}}
+# Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
-    "base": {},
-    "step4": {"sampler": {"expert_step_scale": 4.0}},
-    "iters5000": {"train": {"iterations": 5000}},
-    "m50": {"sampler": {"num_children": 50}},
-    "rounds3": {"rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
-    "trees5": {"demo": {"episodes": 5, "trees": 5}},
-    "m500": {"sampler": {"num_children": 500}},  # trees5's node count in one tree: more data, one placement
-    "trees5_rounds3": {"demo": {"episodes": 5, "trees": 5},
-                       "rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
-    # Each depth seeded with the demo's own state: the objects where the demo had them (a pushed cube included).
-    "anchored5": {"demo": {"episodes": 5, "trees": 5}, "sampler": {"seeds_from_demo": True}},
-    "anchored5_rounds3": {"demo": {"episodes": 5, "trees": 5}, "sampler": {"seeds_from_demo": True},
-                          "rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}},
+    "base": (),
+    "expert_step_range": ({"sampler": {"expert_step_scale": 4.0}},),
+    "longer_training": ({"train": {"iterations": 5000}},),
+    "fewer_children": ({"sampler": {"num_children": 50}},),
+    "three_rounds": (THREE_ROUNDS,),
+    "five_trees": (FIVE_TREES,),
+    "more_children": ({"sampler": {"num_children": 500}},),  # five trees' node count in one tree, one placement
+    "five_trees_three_rounds": (FIVE_TREES, THREE_ROUNDS),
+    "five_trees_demo_seeds": (FIVE_TREES, DEMO_SEEDS),
+    "five_trees_demo_seeds_three_rounds": (FIVE_TREES, DEMO_SEEDS, THREE_ROUNDS),
 }
+# A variant that only adds rounds starts from the demo, trees and reward of the one it adds them to.
+ADDS_ROUNDS_TO = {"five_trees_three_rounds": "five_trees",
+                  "five_trees_demo_seeds_three_rounds": "five_trees_demo_seeds"}
 RESULTS = Path("docs/results/general_recipe")
 
 
 def recipe(variant: str) -> dict:
-    """The recipe dict of a variant: ``BASE`` with the variant's sections merged in."""
+    """The recipe dict of a variant: ``BASE`` with the variant's parts merged in."""
     from drem_maniskill.pipeline.recipe import merge
 
-    return merge(copy.deepcopy(BASE), VARIANTS[variant])
+    out = BASE
+    for part in VARIANTS[variant]:
+        out = merge(out, part)
+    return out
 
 
 def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
@@ -65,8 +72,8 @@ def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
 
 
 def reuse_trees(work: Path, source) -> None:
-    """Start a variant that only adds stages (``trees5_rounds3``) from the demo, trees and reward its prefix
-    variant built (``trees5``), so both measure the same trees."""
+    """Start a variant that only adds rounds (``ADDS_ROUNDS_TO``) from the demo, trees and reward of the variant it
+    adds them to, built in ``source``, so both measure the same trees."""
     import shutil
 
     if source is None or work.exists() or not (source / "reward" / "drem.pt").is_file():
@@ -90,7 +97,8 @@ def main() -> None:
     for task in args.tasks:
         for variant in args.variants:
             work = Path(args.out) / task / variant
-            reuse_trees(work, Path(args.out) / task / variant.split("_")[0] if "_" in variant else None)
+            source = ADDS_ROUNDS_TO.get(variant)
+            reuse_trees(work, Path(args.out) / task / source if source else None)
             start = time.time()
             build_reward(task, scale="full", out=work, recipe=recipe(variant))
             result = summary(task, variant, work, time.time() - start)
