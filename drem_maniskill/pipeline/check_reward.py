@@ -222,17 +222,11 @@ def judge(rows: list, expert: Optional[dict], config: CheckConfig, curve: Sequen
     )
 
 
-def _shown(path) -> str:
-    """``path`` relative to the working directory when inside it, so a committed report names no home dirs."""
-    shown = os.path.relpath(path)
-    return str(Path(path).resolve()) if shown.startswith("..") else shown
-
-
 def check_reward(config: CheckConfig) -> dict:
     """Run the check (resuming a SAC run it already started) and write ``report.json``; returns the report."""
     from drem_maniskill.drem.checkpoint import resolve_checkpoint
     from drem_maniskill.rl.run_env import make_eval_env
-    from drem_maniskill.rl.train_policy import file_sha256, train_policy
+    from drem_maniskill.rl.train_policy import file_sha256, shown_path, train_policy
 
     if config.run:
         run, checkpoint, out = given_run(config)
@@ -256,10 +250,10 @@ def check_reward(config: CheckConfig) -> dict:
     finally:
         env.close()
     curve = run_curve(run)
-    report = dict(task=task, reward=run.reward, out=_shown(out),
-                  checkpoint=None if checkpoint is None else _shown(checkpoint),
+    report = dict(task=task, reward=run.reward, out=shown_path(out),
+                  checkpoint=None if checkpoint is None else shown_path(checkpoint),
                   sha256=None if checkpoint is None else file_sha256(checkpoint),
-                  sac=dict(steps=steps, preset=run.preset, seed=run.seed, run_dir=_shown(run.run_dir), curve=curve),
+                  sac=dict(steps=steps, preset=run.preset, seed=run.seed, run_dir=shown_path(run.run_dir), curve=curve),
                   verdict=judge(rows, expert, config, curve), episodes=rows, config=dataclasses.asdict(config))
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=2) + "\n")

@@ -217,6 +217,12 @@ def _check_resumable(saved: RLConfig, config: RLConfig) -> None:
                          "use another --out or the same options")
 
 
+def shown_path(path) -> str:
+    """``path`` relative to the working directory when inside it (no home dirs in the repo's results), else as given."""
+    shown = os.path.relpath(path)
+    return str(path) if shown.startswith("..") else shown
+
+
 def file_sha256(path) -> str:
     """Hex sha256 of a file's bytes."""
     digest = hashlib.sha256()
@@ -236,10 +242,7 @@ def pin_reward_checkpoint(config: RLConfig, run_dir: Path, resuming: bool) -> Op
     path = reward_checkpoint(config.reward, check_env_id(config.task), config.reward_checkpoint)
     if path is None or not path.exists():
         return None  # no DREM reward, or make_env names the missing file
-    shown = os.path.relpath(path)
-    if shown.startswith(".."):
-        shown = str(path)  # outside the working directory; inside it, no home dirs in the repo's results
-    now = dict(path=shown, sha256=file_sha256(path))
+    now = dict(path=shown_path(path), sha256=file_sha256(path))
     pin = run_dir / "reward_checkpoint.json"
     if resuming and pin.exists():
         saved = json.loads(pin.read_text())

@@ -191,7 +191,7 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
 
 def _demo_seed(expert: ExpertTrajectory, sampler: ChildSampler, depth: int) -> dict:
     """The state the children at ``depth`` start from under ``seeds_from_demo``: the demo's ``depth`` steps before
-    its goal (its first state beyond), flat."""
+    its goal (its first state beyond), flat; the sampler's env is left in it."""
     t = max(expert.length - 1 - depth, 0)
     sampler.adapter.set_state(broadcast_state(state_at(expert.states, t), sampler.n))
     return dict(state=sampler.adapter.flatten(sampler.adapter.get_state())[0].cpu().numpy())
@@ -199,8 +199,7 @@ def _demo_seed(expert: ExpertTrajectory, sampler: ChildSampler, depth: int) -> d
 
 def _goal_node(expert: ExpertTrajectory, expert_ee: np.ndarray, sampler: ChildSampler) -> tuple:
     """The root node's rows (the goal state, as the expert's last step recorded it), its flat state and start flag."""
-    sampler.adapter.set_state(broadcast_state(state_at(expert.states, expert.length - 1), sampler.n))
-    flat = sampler.adapter.flatten(sampler.adapter.get_state())[:1].cpu().numpy()
+    flat = _demo_seed(expert, sampler, 0)["state"][None]
     in_region = bool(sampler.in_start_region()[0])
     root = {f"{m}_rgb": expert.last_obs[f"{m}_rgb"][None] for m in expert.camera_map}
     extras = dict(colors=sampler.adapter.colors(), placement=sampler.adapter.placements(),
