@@ -27,6 +27,8 @@ FIVE_TREES = {"demo": {"episodes": 5, "trees": 5}}
 # Each depth's children from the demo's own state: the objects where the demo had them (a pushed cube included).
 DEMO_SEEDS = {"sampler": {"seeds_from_demo": True}}
 THREE_ROUNDS = {"rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}}
+# The trees' own resolution (the stock cameras render 128 px): a 4 cm cube is about 4 px wide at 64 px.
+FULL_RESOLUTION = {"train": {"model": {"image_size": 128}}}
 # Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
     "base": (),
@@ -39,10 +41,13 @@ VARIANTS = {
     "five_trees_three_rounds": (FIVE_TREES, THREE_ROUNDS),
     "five_trees_demo_seeds": (FIVE_TREES, DEMO_SEEDS),
     "five_trees_demo_seeds_three_rounds": (FIVE_TREES, DEMO_SEEDS, THREE_ROUNDS),
+    "five_trees_128px": (FIVE_TREES, FULL_RESOLUTION),
 }
-# A variant that only adds rounds starts from the demo, trees and reward of the one it adds them to.
-ADDS_ROUNDS_TO = {"five_trees_three_rounds": "five_trees",
-                  "five_trees_demo_seeds_three_rounds": "five_trees_demo_seeds"}
+# A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
+# measure the same trees) and, where it only adds rounds, from that one's reward too.
+BUILDS_ON = {"five_trees_three_rounds": ("five_trees", True),
+             "five_trees_demo_seeds_three_rounds": ("five_trees_demo_seeds", True),
+             "five_trees_128px": ("five_trees", False)}
 RESULTS = Path("docs/results/general_recipe")
 
 
@@ -71,15 +76,17 @@ def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
                 trees=header.get("trees", []))
 
 
-def reuse_trees(work: Path, source) -> None:
-    """Start a variant that only adds rounds (``ADDS_ROUNDS_TO``) from the demo, trees and reward of the variant it
-    adds them to, built in ``source``, so both measure the same trees."""
+def reuse_trees(work: Path, source, with_reward: bool) -> None:
+    """Start a variant (``BUILDS_ON``) from the demo and trees, and with ``with_reward`` the reward, of the variant
+    built in ``source``."""
     import shutil
 
-    if source is None or work.exists() or not (source / "reward" / "drem.pt").is_file():
+    if source is None or work.exists():
+        return
+    if not (source / "reward" / "drem.pt" if with_reward else source / "tree.h5").is_file():
         return
     work.mkdir(parents=True)
-    for name in ("expert", "reward"):
+    for name in ("expert", "reward") if with_reward else ("expert",):
         shutil.copytree(source / name, work / name)
     for tree in source.glob("tree*.h5"):
         shutil.copyfile(tree, work / tree.name)
@@ -97,8 +104,8 @@ def main() -> None:
     for task in args.tasks:
         for variant in args.variants:
             work = Path(args.out) / task / variant
-            source = ADDS_ROUNDS_TO.get(variant)
-            reuse_trees(work, Path(args.out) / task / source if source else None)
+            source, with_reward = BUILDS_ON.get(variant, (None, False))
+            reuse_trees(work, Path(args.out) / task / source if source else None, with_reward)
             start = time.time()
             build_reward(task, scale="full", out=work, recipe=recipe(variant))
             result = summary(task, variant, work, time.time() - start)
