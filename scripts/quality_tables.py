@@ -27,11 +27,16 @@ def measures(q: dict) -> list:
     experts_auroc = [("AUROC of the final-step reward over the expert and the noisy expert only",
                       _f(q["final_reward_auroc_expert_noisy"]), ">= 0.9")] \
         if q.get("final_reward_auroc_expert_noisy") is not None else []
+    # The scene swap exists in examinations that ran it (docs/drem.md, "Examination").
+    swap = [("the expert's end with every other body back at its start, over the end (near 1: the reward reads the "
+             "robot)", _f(q["robot_only_over_expert"]), "well below 1")] \
+        if q.get("robot_only_over_expert") is not None else []
     return [
         ("value-order Spearman (reward vs time step, expert episodes)", _f(q["value_order_spearman"]), ">= 0.95"),
         ("AUROC of the final-step reward, success vs failure", _f(q["final_reward_auroc"]), ">= 0.98"),
         *experts_auroc,
         ("Random policy mean reward", _f(q["random_mean_reward"]), "<= 0.1"),
+        *swap,
         (f"contact plateau: Align Success from first contact to insertion, over Direct Success's final "
          f"({plateau.get('episodes')} episodes)",
          f"{_f(plateau.get('fraction'))} "

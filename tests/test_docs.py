@@ -205,3 +205,11 @@ def test_each_exploit_check_report_beside_a_model_card_is_shown_in_it(report):
     card = (report.parent / "MODEL_CARD.md").read_text()
     assert markdown_table(json.loads(report.read_text())) in card, report
     assert report.name in card, report
+
+
+def test_the_scene_swap_row_is_printed_where_the_examination_measured_it():
+    qt = _quality_tables()
+    q = dict(value_order_spearman=0.99, final_reward_auroc=0.96, random_mean_reward=0.4)
+    assert "reads the robot" not in qt.tables(q)
+    row = [r for r in qt.tables({**q, "robot_only_over_expert": 0.998}).split("\n") if "reads the robot" in r]
+    assert len(row) == 1 and "| 0.998 | well below 1 |" in row[0]

@@ -26,7 +26,7 @@ from scipy.stats import spearmanr
 
 from drem_maniskill.drem.wrapper import DREMRewardWrapper
 from drem_maniskill.envs import is_insertion_task
-from drem_maniskill.envs.adapter import SocketGeometry
+from drem_maniskill.envs.adapter import DRIVE_KEY, SocketGeometry, adapter_for
 from drem_maniskill.experts import ee_control_kwargs, get_policy, rollout
 from drem_maniskill.experts.scripted import CONTACT_FORCE, PRESS_DEPTH, HoldPolicy
 from drem_maniskill.experts.stock import STOCK_EXPERTS
@@ -69,6 +69,42 @@ def examination_episode(env, policy_name: str, seed: int, stop_on_success: bool 
     ep = rollout(env, get_policy(policy_name, env, seed=seed), seed, stop_on_success=stop_on_success, measure=_measure)
     measures = {k: ep.measures.get(k, []) for k in ("force", "normalized_dense", "insertion_depth", "radial_offset")}
     return dict(rewards=ep.rewards, success=ep.success, **measures)
+
+
+# The keys of a state dict that belong to the robot (its joints, drives, controller and our tasks' wrist F/T).
+ROBOT_KEYS = ("controller", "task", DRIVE_KEY)
+
+
+def compose_scene(robot_from: dict, rest_from: dict, robot: str) -> dict:
+    """A state dict with the robot ``robot`` (and its controller, drives and F/T) of ``robot_from`` and every other
+    body of ``rest_from``."""
+    out = {k: v for k, v in rest_from.items() if k not in ROBOT_KEYS}
+    out["articulations"] = {**rest_from.get("articulations", {}), robot: robot_from["articulations"][robot]}
+    out.update({k: robot_from[k] for k in ROBOT_KEYS if k in robot_from})
+    return out
+
+
+def scene_swap(env, seed: int) -> dict:
+    """``R`` at the expert's end, with the robot there and the other bodies back where the episode started
+    (``robot_at_end``), and the other way round (``objects_at_end``).
+
+    Call it right after the expert's episode of ``seed``: it reads the end state and resets ``env`` to ``seed``. A
+    reward that pays ``robot_at_end`` about what it pays the end reads the robot, not the task.
+    """
+    u = env.unwrapped
+    adapter = adapter_for(env)
+    reward = getattr(env, "reward_model", None) or u.drem_reward
+    robot = u.agent.robot.name
+    end = adapter.get_state()
+    env.reset(seed=seed)
+    start = adapter.get_state()
+
+    def paid(state: dict) -> float:
+        adapter.set_state(state)
+        return float(reward.reward(env, None)[0])
+
+    return dict(end=paid(end), robot_at_end=paid(compose_scene(end, start, robot)),
+                objects_at_end=paid(compose_scene(start, end, robot)))
 
 
 def _pooled_spearman(episodes: list, key: str) -> float | None:
@@ -336,8 +372,11 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
         policies = [p for p in (STOCK_EXAMINATION if tuple(policies) == EXAMINATION else policies) if p in allowed]
     env = _make_env(env_id, checkpoint, env_kwargs)
     try:
-        expert = [examination_episode(env, "expert", s)
-                  for s in progress_bar(seeds, desc="examine: expert", unit="episode")]
+        expert, swaps = [], []
+        for s in progress_bar(seeds, desc="examine: expert", unit="episode"):
+            expert.append(examination_episode(env, "expert", s))
+            if expert[-1]["success"]:
+                swaps.append(scene_swap(env, s))
         curves = {p: [examination_episode(env, p, s, stop_on_success=False)
                       for s in progress_bar(seeds, desc=f"examine: {p}", unit="episode")]
                   for p in policies}
@@ -346,7 +385,7 @@ def examine(env_id: str, checkpoint: str, seeds: Sequence[int] = range(20), out_
             held = hold_positions(env, seeds, hold_targets(env), vias=hold_vias(env), turns=hold_turns(env))
     finally:
         env.close()
-    result = _quality(env_id, checkpoint, seeds, expert, curves, held)
+    result = _quality(env_id, checkpoint, seeds, expert, curves, held, swaps)
     if out_dir:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -363,8 +402,20 @@ def _split_finals(curves: dict, policies: Sequence[str]) -> tuple:
     return [r for r, s in finals if s], [r for r, s in finals if not s]
 
 
-def _quality(env_id: str, checkpoint: str, seeds: Sequence[int], expert: list, curves: dict, held: dict) -> dict:
-    """The ``quality.json`` measures of the expert episodes, the policies' ``curves`` and the ``held`` positions."""
+def swap_ratios(swaps: Sequence[dict]) -> dict:
+    """``robot_only_over_expert`` and ``objects_only_over_expert``: the mean ``R`` of ``scene_swap``'s two swapped
+    scenes over its mean at the expert's end (None without episodes)."""
+    if not swaps:
+        return dict(robot_only_over_expert=None, objects_only_over_expert=None)
+    end = float(np.mean([w["end"] for w in swaps]))
+    return {f"{name}_over_expert": float(np.mean([w[key] for w in swaps])) / end if end else None
+            for name, key in (("robot_only", "robot_at_end"), ("objects_only", "objects_at_end"))}
+
+
+def _quality(env_id: str, checkpoint: str, seeds: Sequence[int], expert: list, curves: dict, held: dict,
+             swaps: Sequence[dict] = ()) -> dict:
+    """The ``quality.json`` measures of the expert episodes, the policies' ``curves``, the ``held`` positions and the
+    expert ends' ``scene_swap`` rows."""
     solved = [e for e in expert if e["success"]]
     rho = [spearmanr(np.arange(len(e["rewards"])), e["rewards"]).correlation for e in solved if len(e["rewards"]) > 2]
     finals = [(ep["rewards"][-1], ep["success"]) for eps in curves.values() for ep in eps]
@@ -389,6 +440,9 @@ def _quality(env_id: str, checkpoint: str, seeds: Sequence[int], expert: list, c
         final_reward_auroc_expert_noisy=auroc(*_split_finals(curves, ("direct_success", "noisy_expert")))
         if "noisy_expert" in curves else None,
         random_mean_reward=random_mean,
+        # The expert's end with the robot there and everything else back at the start, over the end itself: near 1,
+        # the reward pays the robot's pose whatever the task's objects do (docs/drem.md, "Examination").
+        **swap_ratios(swaps),
         search_fail_contact_loss=dict(
             episodes_with_loss=len(drops),
             before=float(np.mean([d[0] for d in drops])) if drops else None,
