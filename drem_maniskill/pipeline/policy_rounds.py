@@ -122,8 +122,9 @@ def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k
     return dict(stats=stats, rows=kept)
 
 
-def write_negatives(path: Path, rows: list, depth: int, cameras, has_ft: bool) -> None:
-    """The hard negatives as HDF5 (``<camera>_rgb``, ``ft``, ``depth``, ``reward``, ``seed``, ``step``), atomically."""
+def write_negatives(path: Path, rows: list, depth, cameras, has_ft: bool) -> None:
+    """The hard negatives as HDF5 (``<camera>_rgb``, ``ft``, ``depth``, ``reward``, ``seed``, ``step``), atomically;
+    ``depth``: one label for every row, or one per row."""
     tmp = path.with_name(path.name + ".tmp")
     with h5py.File(tmp, "w") as f:
         for c in cameras:
@@ -131,7 +132,7 @@ def write_negatives(path: Path, rows: list, depth: int, cameras, has_ft: bool) -
                              if rows else np.zeros((0, 1, 1, 3), np.uint8), compression="gzip")
         ft = [x["ft"].numpy() for x, *_ in rows] if has_ft else []
         f.create_dataset("ft", data=np.concatenate(ft) if ft else np.zeros((len(rows), 8, 6), np.float32))
-        f.create_dataset("depth", data=np.full(len(rows), depth, np.int64))
+        f.create_dataset("depth", data=np.broadcast_to(np.asarray(depth, np.int64), (len(rows),)))
         f.create_dataset("reward", data=np.array([r for _, r, _, _ in rows], np.float32))
         f.create_dataset("seed", data=np.array([s for _, _, s, _ in rows], np.int64))
         f.create_dataset("step", data=np.array([t for _, _, _, t in rows], np.int64))
