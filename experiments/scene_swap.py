@@ -5,7 +5,7 @@ every other body back where the episode started, and the other way round (``pipe
 the ratios and the per-episode rows to ``--out`` (JSON), one entry per checkpoint, and prints a line each.
 
     .venv/bin/python experiments/scene_swap.py PushCube-v1=outputs/general_recipe/PushCube-v1/five_trees/drem.pt \\
-        PegInHole-v1=drem_maniskill/rewards/PegInHole-v1/drem.pt --out docs/results/scene_swap.json
+        PegInHole-v1=rewards/PegInHole-v1/drem.pt --out docs/results/scene_swap.json
 """
 
 from __future__ import annotations
