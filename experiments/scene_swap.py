@@ -1,7 +1,7 @@
 """Does a reward read the task or the robot? The examination's scene swap on rewards built before it had one.
 
 For each ``TASK=CHECKPOINT``: the expert on held-out seeds, and at each successful end ``R`` with the robot there and
-every other body back where the episode started, and the other way round (``pipeline.examine.scene_swap``). Writes
+every other body back where the episode started, and the other way round (``pipeline.scene_swap.scene_swap``). Writes
 the ratios and the per-episode rows to ``--out`` (JSON), one entry per checkpoint, and prints a line each.
 
     .venv/bin/python experiments/scene_swap.py PushCube-v1=outputs/general_recipe/PushCube-v1/five_trees/drem.pt \\
@@ -18,7 +18,8 @@ from pathlib import Path
 
 def measure(task: str, checkpoint: str, seeds) -> dict:
     """The scene-swap ratios of ``checkpoint`` on ``task`` over the expert's successful episodes on ``seeds``."""
-    from drem_maniskill.pipeline.examine import _make_env, examination_episode, scene_swap, swap_ratios
+    from drem_maniskill.pipeline.examine import _make_env, examination_episode
+    from drem_maniskill.pipeline.scene_swap import scene_swap, swap_ratios
     from drem_maniskill.utils.progress import progress_bar
 
     env = _make_env(task, checkpoint, None)

@@ -1,7 +1,7 @@
 """Scene-swap negatives on a built forest: do they make the reward read the task's objects rather than the robot?
 
 Takes a general-recipe build (``experiments/general_recipe.py``, e.g. ``five_trees``), writes the scene-swap
-negatives of each demo episode (``pipeline.swap_negatives``), trains the same recipe's model on the same trees with
+negatives of each demo episode (``pipeline.scene_swap.swap_negatives``), trains the same recipe's model on the same trees with
 them for each ``--iterations``, examines it, and measures what it pays its own negatives (all of them, and those with
 the robot at the goal). Every stage is skipped when its output exists. The summary goes to
 ``docs/results/general_recipe/<task>/<variant>_scene_swap.json``.
@@ -55,7 +55,7 @@ def main() -> None:
     from drem_maniskill.pipeline.dataset import dataset_modalities
     from drem_maniskill.pipeline.examine import examine
     from drem_maniskill.pipeline.recipe import load_recipe
-    from drem_maniskill.pipeline.swap_negatives import swap_negatives
+    from drem_maniskill.pipeline.scene_swap import swap_negatives
     from drem_maniskill.pipeline.train_reward import train_reward
 
     src, out = Path(args.builds) / args.task / args.variant, Path(args.out) / args.task / args.variant

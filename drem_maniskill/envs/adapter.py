@@ -203,6 +203,19 @@ class EnvAdapter:
         return flatten_state(state)
 
 
+# The keys of a state dict that belong to the robot (its joints, drives, controller and our tasks' wrist F/T).
+ROBOT_KEYS = ("controller", "task", DRIVE_KEY)
+
+
+def compose_scene(robot_from: dict, rest_from: dict, robot: str) -> dict:
+    """A state dict with the robot ``robot`` (and its controller, drives and F/T) of ``robot_from`` and every other
+    body of ``rest_from``."""
+    out = {k: v for k, v in rest_from.items() if k not in ROBOT_KEYS}
+    out["articulations"] = {**rest_from.get("articulations", {}), robot: robot_from["articulations"][robot]}
+    out.update({k: robot_from[k] for k in ROBOT_KEYS if k in robot_from})
+    return out
+
+
 def adapter_for(env) -> EnvAdapter:
     """The adapter of a ManiSkill env (wrapped or not)."""
     u = env.unwrapped

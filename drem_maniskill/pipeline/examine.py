@@ -26,10 +26,11 @@ from scipy.stats import spearmanr
 
 from drem_maniskill.drem.wrapper import DREMRewardWrapper
 from drem_maniskill.envs import is_insertion_task
-from drem_maniskill.envs.adapter import DRIVE_KEY, SocketGeometry, adapter_for
+from drem_maniskill.envs.adapter import SocketGeometry
 from drem_maniskill.experts import ee_control_kwargs, get_policy, rollout
 from drem_maniskill.experts.scripted import CONTACT_FORCE, PRESS_DEPTH, HoldPolicy
 from drem_maniskill.experts.stock import STOCK_EXPERTS
+from drem_maniskill.pipeline.scene_swap import scene_swap, swap_ratios
 from drem_maniskill.utils.progress import progress_bar
 
 EXAMINATION = ("direct_success", "align_success", "search_fail", "random")
@@ -69,42 +70,6 @@ def examination_episode(env, policy_name: str, seed: int, stop_on_success: bool 
     ep = rollout(env, get_policy(policy_name, env, seed=seed), seed, stop_on_success=stop_on_success, measure=_measure)
     measures = {k: ep.measures.get(k, []) for k in ("force", "normalized_dense", "insertion_depth", "radial_offset")}
     return dict(rewards=ep.rewards, success=ep.success, **measures)
-
-
-# The keys of a state dict that belong to the robot (its joints, drives, controller and our tasks' wrist F/T).
-ROBOT_KEYS = ("controller", "task", DRIVE_KEY)
-
-
-def compose_scene(robot_from: dict, rest_from: dict, robot: str) -> dict:
-    """A state dict with the robot ``robot`` (and its controller, drives and F/T) of ``robot_from`` and every other
-    body of ``rest_from``."""
-    out = {k: v for k, v in rest_from.items() if k not in ROBOT_KEYS}
-    out["articulations"] = {**rest_from.get("articulations", {}), robot: robot_from["articulations"][robot]}
-    out.update({k: robot_from[k] for k in ROBOT_KEYS if k in robot_from})
-    return out
-
-
-def scene_swap(env, seed: int) -> dict:
-    """``R`` at the expert's end, with the robot there and the other bodies back where the episode started
-    (``robot_at_end``), and the other way round (``objects_at_end``).
-
-    Call it right after the expert's episode of ``seed``: it reads the end state and resets ``env`` to ``seed``. A
-    reward that pays ``robot_at_end`` about what it pays the end reads the robot, not the task.
-    """
-    u = env.unwrapped
-    adapter = adapter_for(env)
-    reward = getattr(env, "reward_model", None) or u.drem_reward
-    robot = u.agent.robot.name
-    end = adapter.get_state()
-    env.reset(seed=seed)
-    start = adapter.get_state()
-
-    def paid(state: dict) -> float:
-        adapter.set_state(state)
-        return float(reward.reward(env, None)[0])
-
-    return dict(end=paid(end), robot_at_end=paid(compose_scene(end, start, robot)),
-                objects_at_end=paid(compose_scene(start, end, robot)))
 
 
 def _pooled_spearman(episodes: list, key: str) -> float | None:
@@ -400,16 +365,6 @@ def _split_finals(curves: dict, policies: Sequence[str]) -> tuple:
     """The final-step rewards of ``policies``' episodes: ``(successful ones, failed ones)``."""
     finals = [(ep["rewards"][-1], ep["success"]) for p in policies for ep in curves.get(p, [])]
     return [r for r, s in finals if s], [r for r, s in finals if not s]
-
-
-def swap_ratios(swaps: Sequence[dict]) -> dict:
-    """``robot_only_over_expert`` and ``objects_only_over_expert``: the mean ``R`` of ``scene_swap``'s two swapped
-    scenes over its mean at the expert's end (None without episodes)."""
-    if not swaps:
-        return dict(robot_only_over_expert=None, objects_only_over_expert=None)
-    end = float(np.mean([w["end"] for w in swaps]))
-    return {f"{name}_over_expert": float(np.mean([w[key] for w in swaps])) / end if end else None
-            for name, key in (("robot_only", "robot_at_end"), ("objects_only", "objects_at_end"))}
 
 
 def _quality(env_id: str, checkpoint: str, seeds: Sequence[int], expert: list, curves: dict, held: dict,
