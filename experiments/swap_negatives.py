@@ -22,20 +22,16 @@ import numpy as np
 def paid_on(checkpoint: str, files) -> dict:
     """The mean ``R`` the reward pays the negatives in ``files``: all, and those with the robot at the goal."""
     import h5py
-    import torch
 
     from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.pipeline.policy_rounds import paid_on_negatives
 
     reward = DREMReward.from_checkpoint(checkpoint)
     paid, robot_depth = [], []
     for path in files:
+        paid.append(paid_on_negatives(reward, path))
         with h5py.File(path, "r") as f:
-            batch = {c: torch.as_tensor(f[f"{c}_rgb"][()]) for c in reward.model.config.cameras}
-            if reward.uses_ft:
-                batch["ft"] = torch.as_tensor(f["ft"][()]).float()
             robot_depth.append(f["step"][()])
-        with torch.no_grad():
-            paid.append(reward(batch).numpy())
     paid, robot_depth = np.concatenate(paid), np.concatenate(robot_depth)
     return dict(negatives=len(paid), all=float(paid.mean()), robot_at_goal=float(paid[robot_depth == 0].mean()))
 

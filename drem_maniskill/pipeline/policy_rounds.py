@@ -177,20 +177,28 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
 
 
 @torch.no_grad()
+def paid_on_negatives(reward, path, batch_size: int = 128) -> np.ndarray:
+    """What ``reward`` (a ``DREMReward``) pays each row of a negatives file ``[N]``."""
+    with h5py.File(path, "r") as f:
+        batch = {m: torch.as_tensor(f[f"{m}_rgb"][()]) for m in reward.model.config.cameras}
+        if reward.uses_ft:
+            batch["ft"] = torch.as_tensor(f["ft"][()]).float()
+    count = len(next(iter(batch.values())))
+    if not count:
+        return np.zeros(0, np.float32)
+    return torch.cat([reward({k: v[i:i + batch_size] for k, v in batch.items()})
+                      for i in range(0, count, batch_size)]).numpy()
+
+
+@torch.no_grad()
 def _record_after(path: Path, negatives: Path) -> None:
     """Add to the new checkpoint's last round what it pays that round's negatives (the round's effect)."""
     from drem_maniskill.drem.checkpoint import load_checkpoint, save_checkpoint
     from drem_maniskill.drem.reward import DREMReward
 
     header, weights = load_checkpoint(str(path))
-    reward = DREMReward(header, weights)
-    with h5py.File(negatives, "r") as f:
-        batch = {m: torch.as_tensor(f[f"{m}_rgb"][()]) for m in reward.model.config.cameras}
-        if reward.uses_ft:
-            batch["ft"] = torch.as_tensor(f["ft"][()]).float()
-    count = len(next(iter(batch.values())))
-    after = float(torch.cat([reward({k: v[i:i + 128] for k, v in batch.items()})
-                             for i in range(0, count, 128)]).mean()) if count else None
+    paid = paid_on_negatives(DREMReward(header, weights), negatives)
+    after = float(paid.mean()) if len(paid) else None
     header["rounds"][-1]["reward_after"] = None if after is None else round(after, 4)
     save_checkpoint(str(path), header, weights)
 
