@@ -123,7 +123,7 @@ def _cmd_run_script(args) -> None:
 # Flags whose name differs from their config field's, kept so existing command lines work.
 TRAIN_ALIASES = {"pairs_per_batch": ["--pairs"], "model.modalities": ["--modalities"],
                  "model.image_size": ["--image-size"]}
-TRAIN_CHOICES = {"model.modalities": ["fixed", "wrist", "ft"]}
+TRAIN_CHOICES = {"model.modalities": ["fixed", "wrist", "ft", "poses"]}
 # Preset names the help shows defaults for; an unknown name is refused by the config's own ``preset``.
 PRESET_NAMES = ("paper", "quick", "tiny")
 

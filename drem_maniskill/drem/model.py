@@ -5,6 +5,10 @@ history through a 4-layer causal 1-d convolution to 32-d; the concatenation thro
 MLP to the 128-d latent ``h(s)``. Decoder: a 7-layer transposed CNN back to each image and a
 3-layer 1-d transposed convolution back to the 8x6 F/T history. Which inputs are used is a
 config (``modalities``), so the paper's "Image learned" baseline is this model without F/T.
+
+Beyond the paper, ``poses``: every body's pose and the robot's joint positions, read from the simulator's state
+(``envs.adapter.scene_poses``), through an MLP to 64-d and back. It is for tasks whose objects are too small in the
+cameras to be read (a 4 cm cube is a few pixels at 64 px): the latent can then place the objects, not only the arm.
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ from torch import nn
 
 from drem_maniskill.drem.checkpoint import CheckpointError
 
-MODALITIES = ("fixed", "wrist", "ft")
+MODALITIES = ("fixed", "wrist", "ft", "poses")
+VECTOR_MODALITIES = ("ft", "poses")
 INITS = ("kaiming", "torch")
 MIN_NORMALISER = 0.01
 """Smallest ``d(h(s_0), h(s_G))`` a reward may divide by. Trained rewards measure 1.1-2.0; a collapsed encoder, whose
@@ -40,6 +45,10 @@ class ModelConfig:
     """Features per camera after its CNN."""
     ft_dim: int = 32
     """Features of the F/T history after its causal convolutions."""
+    poses_size: int = 0
+    """Values in the scene-poses vector (``poses``); set from the progress tree when the model is trained."""
+    poses_dim: int = 64
+    """Features of the scene poses after their MLP."""
     latent_dim: int = 128
     """Size of the latent ``h(s)``."""
     channels: tuple = (16, 32, 32, 64, 64, 128)
@@ -63,7 +72,7 @@ class ModelConfig:
     @property
     def cameras(self) -> tuple:
         """Image modalities in a fixed order."""
-        return tuple(m for m in self.modalities if m != "ft")
+        return tuple(m for m in self.modalities if m not in VECTOR_MODALITIES)
 
     def to_dict(self) -> dict:
         """JSON-ready dict."""
@@ -162,6 +171,31 @@ class FTDecoder(nn.Module):
         return self.net(self.fc(h).view(h.shape[0], 64, self.start)).transpose(1, 2)
 
 
+class PosesEncoder(nn.Module):
+    """Standardised scene poses through a 3-layer MLP -> ``out_dim``."""
+
+    def __init__(self, size, out_dim):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(size, 256), nn.LeakyReLU(0.1), nn.Linear(256, 256), nn.LeakyReLU(0.1),
+                                 nn.Linear(256, out_dim))
+
+    def forward(self, poses):
+        """``[B, size]`` (standardised) -> ``[B, out_dim]``."""
+        return self.net(poses)
+
+
+class PosesDecoder(nn.Module):
+    """2-layer MLP: latent -> standardised scene poses."""
+
+    def __init__(self, in_dim, size):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(in_dim, 256), nn.LeakyReLU(0.1), nn.Linear(256, size))
+
+    def forward(self, h):
+        """``[B, in_dim]`` -> ``[B, size]``."""
+        return self.net(h)
+
+
 class DREMModel(nn.Module):
     """Encoder ``h(s)`` and decoders. Inputs: dict of uint8 images ``[B, H, W, 3]`` and ``ft [B, T, 6]``."""
 
@@ -183,6 +217,17 @@ class DREMModel(nn.Module):
             self.ft_encoder = FTEncoder(config.ft_dim, config.ft_history)
             self.ft_decoder = FTDecoder(config.latent_dim, config.ft_history)
             fused += config.ft_dim
+        if "poses" in config.modalities:
+            if config.poses_size < 1:
+                raise ValueError("a model reading poses needs poses_size (the scene-poses vector's length); "
+                                 "train_reward sets it from the progress tree")
+            # Standardised with the tree's own statistics (set_poses_stats): positions differ by centimetres,
+            # joint angles by radians, and some bodies never move.
+            self.register_buffer("poses_mean", torch.zeros(config.poses_size))
+            self.register_buffer("poses_std", torch.ones(config.poses_size))
+            self.poses_encoder = PosesEncoder(config.poses_size, config.poses_dim)
+            self.poses_decoder = PosesDecoder(config.latent_dim, config.poses_size)
+            fused += config.poses_dim
         self.fusion = nn.Sequential(nn.Linear(fused, 256), nn.LeakyReLU(0.1), nn.Linear(256, config.latent_dim))
         if config.init == "kaiming":
             kaiming_init(self)
@@ -203,20 +248,32 @@ class DREMModel(nn.Module):
             out[c] = img.contiguous()
         if "ft" in self.config.modalities:
             out["ft"] = batch["ft"].float() / self.ft_scale
+        if "poses" in self.config.modalities:
+            out["poses"] = (batch["poses"].float() - self.poses_mean) / self.poses_std
         return out
+
+    def set_poses_stats(self, poses: torch.Tensor, floor: float = 0.01) -> None:
+        """Standardise scene poses by the mean and spread of ``poses`` ``[N, size]`` (the training set's); a spread
+        below ``floor`` counts as ``floor``, so a body that never moved in the tree does not blow up elsewhere."""
+        self.poses_mean.copy_(poses.float().mean(0))
+        self.poses_std.copy_(poses.float().std(0).clamp_min(floor))
 
     def encode(self, inputs: dict) -> torch.Tensor:
         """Prepared inputs -> latent ``[B, latent_dim]``."""
         parts = [self.image_encoders[c](inputs[c]) for c in self.config.cameras]
         if "ft" in self.config.modalities:
             parts.append(self.ft_encoder(inputs["ft"]))
+        if "poses" in self.config.modalities:
+            parts.append(self.poses_encoder(inputs["poses"]))
         return self.fusion(torch.cat(parts, dim=1))
 
     def decode(self, h: torch.Tensor) -> dict:
-        """Latent -> image logits per camera and the scaled F/T history."""
+        """Latent -> image logits per camera, the scaled F/T history and the standardised poses."""
         out = {c: self.image_decoders[c](h) for c in self.config.cameras}
         if "ft" in self.config.modalities:
             out["ft"] = self.ft_decoder(h)
+        if "poses" in self.config.modalities:
+            out["poses"] = self.poses_decoder(h)
         return out
 
     def forward(self, batch: dict):

@@ -11,6 +11,7 @@ returns a ``[num_envs]`` tensor, without gradients. Every route of DREM into an 
 from __future__ import annotations
 
 import operator
+from typing import Optional
 
 import torch
 import torch.nn.functional as F
@@ -27,6 +28,7 @@ from drem_maniskill.drem.checkpoint import (  # noqa: F401
 from drem_maniskill.drem.fast_encoder import FastEncoder
 from drem_maniskill.drem.model import CAMERA_OF, DREMModel, ModelConfig, check_normaliser, cosine_distance
 from drem_maniskill.utils.cameras import camera_images
+from drem_maniskill.utils.state import scene_poses
 
 _VERSION = operator.attrgetter("_version")
 
@@ -86,6 +88,11 @@ class DREMReward(nn.Module):
             env_id = getattr(u, "env_id", "") or (u.spec.id if u.spec else type(u).__name__)
             check_compatible(header, env_id, cams, ft, str(path))
         reward = cls(header, weights)
+        if env is not None and reward.uses_poses:
+            size, want = scene_poses(env.unwrapped.get_state_dict()).shape[1], reward.model.config.poses_size
+            if size != want:
+                raise CheckpointError(f"{path} reads {want} scene-pose values, this {env_id} scene has {size}: it was "
+                                      "trained on another task or scene; build a reward for this one")
         if env is not None:
             missing = [uid for uid in reward.camera_uids if uid not in cams]
             if missing:
@@ -114,13 +121,20 @@ class DREMReward(nn.Module):
         """Whether the model reads the wrist F/T history."""
         return "ft" in self.model.config.modalities
 
+    @property
+    def uses_poses(self) -> bool:
+        """Whether the model reads the scene's poses (``envs.adapter.scene_poses``)."""
+        return "poses" in self.model.config.modalities
+
     def inputs(self, env, obs) -> dict:
         """The model's raw inputs for ``env``'s current state: the checkpoint's camera images from ``obs``
-        (rendered once when it has none) and the wrist F/T history when the model reads it."""
-        images = camera_images(env, obs, self._uids)
+        (rendered once when it has none), the wrist F/T history and the scene's poses when the model reads them."""
+        images = camera_images(env, obs, self._uids) if self._uids else {}
         batch = {key: images[uid] for key, uid in self._camera_pairs}
         if self.uses_ft:
             batch["ft"] = env.unwrapped.ft.buffer
+        if self.uses_poses:
+            batch["poses"] = scene_poses(env.unwrapped.get_state_dict())
         return batch
 
     def reward(self, env, obs) -> torch.Tensor:
@@ -145,8 +159,9 @@ class DREMReward(nn.Module):
         self._fast_tensors = None
         return super()._apply(fn, *args, **kwargs)
 
-    def fast_encoder(self) -> FastEncoder:
-        """The fast encoder of the current weights (rebuilt after ``.to()``, ``load_state_dict`` or edits)."""
+    def fast_encoder(self) -> Optional[FastEncoder]:
+        """The fast encoder of the current weights (rebuilt after ``.to()``, ``load_state_dict`` or edits; None for a
+        model reading poses)."""
         tensors = getattr(self, "_fast_tensors", None)
         if tensors is None:
             m = self.model  # what h(s) reads; the decoders do not count
@@ -158,7 +173,8 @@ class DREMReward(nn.Module):
         # moving the model's own tensors (``reward.model.to(...)``) changes their storage.
         key = (*map(_VERSION, tensors), *map(torch.Tensor.data_ptr, tensors))
         if self._fast_key != key:
-            self._fast_encoder = FastEncoder(self.model)
+            # The fast path covers the paper's inputs; a model reading poses takes the reference path.
+            self._fast_encoder = None if self.uses_poses else FastEncoder(self.model)
             with torch.no_grad():
                 # Eq. 2's constants, computed once with the same ops as forward_reference.
                 self._goal_unit = F.normalize(self.h_goal[None], dim=-1)
@@ -188,7 +204,7 @@ class DREMReward(nn.Module):
             batch = {k: v.to(dev) for k, v in batch.items()}
         fast = self.fast_encoder()
         h = None
-        if self._batch_size(batch) < self.FAST_MAX_BATCH:
+        if fast is not None and self._batch_size(batch) < self.FAST_MAX_BATCH:
             if self.h_goal.device.type == "cpu":
                 # Each op here is too small to split over threads: a second thread only adds
                 # wake-ups (measured 1.7 vs 2.0 ms per reward with 2 cores, under load).

@@ -27,7 +27,7 @@ import torch
 
 from drem_maniskill.envs.insertion_base import InsertionEnv
 from drem_maniskill.utils.cameras import camera_images, camera_roles, env_cameras
-from drem_maniskill.utils.state import flatten_state, unflatten_like
+from drem_maniskill.utils.state import flatten_state, scene_poses, unflatten_like
 
 DRIVE_KEY = "drem_drive_targets"
 
@@ -173,6 +173,10 @@ class EnvAdapter:
         ee = self.ee_state()
         near = torch.linalg.norm(ee[:, :3] - ref[:3], dim=1) <= radius
         return near & ((ee[:, 7] - ref[7]).abs() <= 0.02)
+
+    def poses(self) -> torch.Tensor:
+        """``scene_poses`` of the env's current state ``[B, D]``."""
+        return scene_poses(self.env.get_state_dict())
 
     def get_state(self) -> dict:
         """A state dict that replays the next step when restored (drive targets included)."""

@@ -27,7 +27,7 @@ def dataset_modalities(path: str) -> tuple:
 
 
 class TreeDataset:
-    """The progress tree in memory: uint8 images at the model's size, F/T, depths."""
+    """The progress tree in memory: uint8 images at the model's size, F/T, scene poses (when read), depths."""
 
     def __init__(self, path: str, config: ModelConfig):
         with tree_file.open_tree(path) as f:
@@ -60,11 +60,19 @@ class TreeDataset:
                 )
             self.images = {c: self._resize(f[f"{c}_rgb"][()], config.image_size) for c in config.cameras}
             self.ft = torch.as_tensor(f["ft"][()]).float()
+            self.poses = None
+            if "poses" in config.modalities:
+                if "poses" not in f or "expert/first/poses" not in f:
+                    raise ValueError(f"{path} holds no scene poses (it was sampled by an earlier version); "
+                                     f"{tree_file.RESAMPLE} to train a model that reads poses")
+                self.poses = torch.as_tensor(f["poses"][()]).float()
             # Raw camera images: h(s_0) and h(s_G) go through the same resizing as rewards do.
             self.expert = {
                 which: {c: torch.as_tensor(f[f"expert/{which}/{c}_rgb"][()][None]) for c in config.cameras}
                 | ({"ft": torch.as_tensor(f[f"expert/{which}/ft"][()][None]).float()}
                    if "ft" in config.modalities else {})
+                | ({"poses": torch.as_tensor(f[f"expert/{which}/poses"][()][None]).float()}
+                   if self.poses is not None else {})
                 for which in ("first", "last")
             }
         self.goal_index = int(torch.nonzero(self.depth == 0)[0])
@@ -100,6 +108,11 @@ class TreeDataset:
         for c in self.images:
             self.images[c] = torch.cat([self.images[c], self._resize(f[f"{c}_rgb"][()], config.image_size)])
         self.ft = torch.cat([self.ft, torch.as_tensor(f["ft"][()]).float()])
+        if self.poses is not None:
+            if "poses" not in f:
+                raise ValueError(f"{f.filename} holds no scene poses, which this model reads; re-sample or "
+                                 "re-collect it with this version")
+            self.poses = torch.cat([self.poses, torch.as_tensor(f["poses"][()]).float()])
         self.depth = torch.cat([self.depth, depth])
         return len(depth)
 
@@ -129,6 +142,8 @@ class TreeDataset:
         """Raw model inputs of nodes ``idx``."""
         out = {c: self.images[c][idx] for c in self.images}
         out["ft"] = self.ft[idx]
+        if self.poses is not None:
+            out["poses"] = self.poses[idx]
         return out
 
     def sample_pairs(self, n: int, eps: float, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:

@@ -38,11 +38,11 @@ def triplet_loss(
 
 
 def reconstruction_loss(recon: dict, inputs: dict) -> torch.Tensor:
-    """Sigmoid cross-entropy per image pixel plus L2 on the F/T history (Section III-B.2)."""
+    """Sigmoid cross-entropy per image pixel plus L2 on the F/T history (Section III-B.2) and on the poses."""
     loss = recon[next(iter(recon))].new_zeros(())
     for key, pred in recon.items():
-        if key == "ft":
-            loss = loss + F.mse_loss(pred, inputs["ft"])
+        if key in ("ft", "poses"):
+            loss = loss + F.mse_loss(pred, inputs[key])
         else:
             loss = loss + F.binary_cross_entropy_with_logits(pred, inputs[key])
     return loss

@@ -123,7 +123,8 @@ def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k
 
 
 def write_negatives(path: Path, rows: list, depth, cameras, has_ft: bool) -> None:
-    """The hard negatives as HDF5 (``<camera>_rgb``, ``ft``, ``depth``, ``reward``, ``seed``, ``step``), atomically;
+    """The hard negatives as HDF5 (``<camera>_rgb``, ``ft``, ``poses`` where the rows hold them, ``depth``, ``reward``,
+    ``seed``, ``step``), atomically;
     ``depth``: one label for every row, or one per row."""
     tmp = path.with_name(path.name + ".tmp")
     with h5py.File(tmp, "w") as f:
@@ -132,6 +133,8 @@ def write_negatives(path: Path, rows: list, depth, cameras, has_ft: bool) -> Non
                              if rows else np.zeros((0, 1, 1, 3), np.uint8), compression="gzip")
         ft = [x["ft"].numpy() for x, *_ in rows] if has_ft else []
         f.create_dataset("ft", data=np.concatenate(ft) if ft else np.zeros((len(rows), 8, 6), np.float32))
+        if rows and "poses" in rows[0][0]:
+            f.create_dataset("poses", data=np.concatenate([x["poses"].numpy() for x, *_ in rows]))
         f.create_dataset("depth", data=np.broadcast_to(np.asarray(depth, np.int64), (len(rows),)))
         f.create_dataset("reward", data=np.array([r for _, r, _, _ in rows], np.float32))
         f.create_dataset("seed", data=np.array([s for _, _, s, _ in rows], np.int64))
@@ -183,6 +186,8 @@ def paid_on_negatives(reward, path, batch_size: int = 128) -> np.ndarray:
         batch = {m: torch.as_tensor(f[f"{m}_rgb"][()]) for m in reward.model.config.cameras}
         if reward.uses_ft:
             batch["ft"] = torch.as_tensor(f["ft"][()]).float()
+        if reward.uses_poses:
+            batch["poses"] = torch.as_tensor(f["poses"][()]).float()
     count = len(next(iter(batch.values())))
     if not count:
         return np.zeros(0, np.float32)

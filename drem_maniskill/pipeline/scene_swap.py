@@ -95,6 +95,7 @@ def swap_negatives(expert_path: str, out: str, episode: int = 0, lag: int = 4, m
             inputs = {m: v[:1].cpu().clone() for m, v in adapter.images(None).items()}
             if adapter.has_ft:
                 inputs["ft"] = adapter.ft()[:1].cpu().clone()
+            inputs["poses"] = adapter.poses()[:1].cpu().clone()
             rows.append((inputs, float("nan"), expert.episode_seed, k))
     finally:
         sampler.env.close()

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -93,10 +93,14 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     data = TreeDataset(dataset_path, config.model)
     data.add_trees(trees, config.model)
     data.add_negatives(negatives, config.model)
+    if data.poses is not None:  # the scene-poses vector's length is the env's, read from its tree
+        config = replace(config, model=replace(config.model, poses_size=int(data.poses.shape[1])))
     torch.manual_seed(config.seed)
     device = torch.device("cuda" if config.device == "auto" and torch.cuda.is_available() else
                           ("cpu" if config.device == "auto" else config.device))
     model = DREMModel(config.model).to(device)
+    if data.poses is not None:
+        model.set_poses_stats(data.poses.to(device))
     if init_checkpoint is not None:
         _load_weights(model, init_checkpoint, config.model)
     model.image_decoders.to(memory_format=torch.channels_last)

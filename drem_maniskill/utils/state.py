@@ -58,3 +58,15 @@ def unflatten_like(template: dict, flat: torch.Tensor) -> dict:
             "it was made by another task or configuration. Prefer env.get_state_dict()."
         )
     return out
+
+
+def scene_poses(state: dict) -> torch.Tensor:
+    """``[B, D]`` floats: every actor's pose (position, wxyz quaternion) and every articulation's root pose and joint
+    positions, from a ManiSkill state dict; velocities, controllers and drive targets left out."""
+    parts = [v[:, :7] for v in state.get("actors", {}).values()]
+    for v in state.get("articulations", {}).values():
+        dof = (v.shape[1] - 13) // 2  # ManiSkill's articulation state: root pose (7), root velocities (6), qpos, qvel
+        parts += [v[:, :7], v[:, 13 : 13 + dof]]
+    if not parts:
+        raise ValueError("the env's state holds no actor or articulation, so it has no poses to read")
+    return torch.cat([torch.as_tensor(p).float() for p in parts], dim=1)

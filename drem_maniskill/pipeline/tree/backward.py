@@ -184,8 +184,12 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
             tree_file.set_header(partial, header)
             return resumed
         partial.unlink()  # from another config: start over
+    anchors = {}
+    for which, t in (("first", 0), ("last", expert.length - 1)):  # the scene's poses beside the recorded images
+        sampler.adapter.set_state(broadcast_state(state_at(expert.states, t), sampler.n))
+        anchors[which] = {**getattr(expert, f"{which}_obs"), "poses": sampler.adapter.poses()[0].cpu().numpy()}
     root, flat, in_region = _goal_node(expert, expert_ee, sampler)
-    tree_file.create(partial, header, expert.first_obs, expert.last_obs, expert_ee, root)
+    tree_file.create(partial, header, anchors["first"], anchors["last"], expert_ee, root)
     return 0, [dict(state=flat[0], in_start_region=in_region)], [0]
 
 
@@ -206,5 +210,6 @@ def _goal_node(expert: ExpertTrajectory, expert_ee: np.ndarray, sampler: ChildSa
                   tip_in_socket=sampler.adapter.tip_in_socket())  # colours: the expert episode's, from its seed
     root.update({k: v[:1].cpu().numpy() for k, v in extras.items() if v is not None})
     root.update(ft=expert.last_obs.get("ft", np.zeros((8, 6), np.float32))[None], tcp_pose=expert_ee[-1:, :7],
+                poses=sampler.adapter.poses()[:1].cpu().numpy(),
                 in_start_region=np.array([in_region]), state=flat, parent=np.array([-1]))
     return root, flat, in_region

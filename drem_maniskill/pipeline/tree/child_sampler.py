@@ -107,7 +107,7 @@ class ChildSampler:
         with the expert's whatever placement a child was moved to.
         """
         out = {k: [] for k in ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "ee", "in_start_region", "state", "colors",
-                               "placement", "tip_in_socket")}
+                               "placement", "tip_in_socket", "poses")}
         for start in range(0, len(actions), self.n):
             chunk = torch.as_tensor(actions[start : start + self.n], dtype=torch.float32)
             k = len(chunk)
@@ -138,6 +138,7 @@ class ChildSampler:
             out["ee"].append(ee)
             out["in_start_region"].append(self.in_start_region()[:k].cpu().numpy())
             out["state"].append(self.adapter.flatten(self.adapter.get_state())[:k].cpu().numpy())
+            out["poses"].append(self.adapter.poses()[:k].cpu().numpy())
         return {k: np.concatenate(v) for k, v in out.items() if v}
 
     def expert_ee_states(self, states: dict) -> np.ndarray:

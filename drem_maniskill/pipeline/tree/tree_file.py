@@ -1,6 +1,7 @@
 """The task progress tree's HDF5 file: the one module that writes and reads its layout.
 
-One row per node in each of ``DATASET_KEYS`` (images, F/T, poses, the node's ``depth`` label and ``parent``), and:
+One row per node in each of ``DATASET_KEYS`` (images, F/T, the scene's poses, the end-effector pose, the node's
+``depth`` label and ``parent``), and:
 
 * ``attrs["header"]``: JSON of the sampler config (``SamplerConfig.to_dict()``; trees sampled before it was nested
   hold the flat form, which ``SamplerConfig.from_dict`` reads too), the env, its cameras and, on our insertion tasks,
@@ -27,8 +28,8 @@ import numpy as np
 
 from drem_maniskill.envs.adapter import SocketGeometry, socket_geometry_of
 
-DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "tcp_pose", "colors", "placement", "tip_in_socket", "depth", "parent",
-                "in_start_region", "is_seed")
+DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "poses", "tcp_pose", "colors", "placement", "tip_in_socket", "depth",
+                "parent", "in_start_region", "is_seed")
 RESAMPLE = "re-sample it with `drem-maniskill sample`"
 
 
@@ -93,7 +94,8 @@ def append_depth(path: Path, data: dict, depth, chosen: np.ndarray, group: Optio
     is_seed = np.zeros(n, bool)
     is_seed[chosen] = True
     rows = {k: data[k].astype(np.uint8) for k in ("fixed_rgb", "wrist_rgb") if k in data}
-    rows.update({k: data[k].astype(np.float32) for k in ("colors", "placement", "tip_in_socket") if k in data})
+    rows.update({k: data[k].astype(np.float32) for k in ("colors", "placement", "tip_in_socket", "poses")
+                 if k in data})
     rows.update(
         ft=data["ft"].astype(np.float32), tcp_pose=data["tcp_pose"].astype(np.float32),
         depth=np.broadcast_to(np.asarray(depth, np.int32), (n,)).copy(), parent=data["parent"].astype(np.int64),
@@ -102,6 +104,8 @@ def append_depth(path: Path, data: dict, depth, chosen: np.ndarray, group: Optio
     with h5py.File(path, "a") as f:
         first = int(f.attrs.get("node_count", 0))
         for key, value in rows.items():
+            if key not in f and first > 0:
+                continue  # a tree begun by a version that did not write this key: it goes on without it
             if key not in f:
                 f.create_dataset(key, data=value, maxshape=(None, *value.shape[1:]),
                                  chunks=(min(64, max(n, 1)), *value.shape[1:]),

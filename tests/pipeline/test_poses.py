@@ -1,0 +1,82 @@
+"""The scene-poses modality (beyond the paper): what the tree stores, the model reads and the reward pays."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import h5py
+import pytest
+import torch
+
+import drem_maniskill  # noqa: F401
+from tests.pipeline.test_stock_tasks import STOCK, stock_pipeline  # noqa: F401
+
+
+def test_scene_poses_keep_poses_and_joint_positions_and_drop_velocities():
+    from drem_maniskill.utils.state import scene_poses
+
+    actor = torch.arange(13.0)[None]
+    robot = torch.arange(100.0, 119.0)[None]  # root pose 7, root velocities 6, qpos 3, qvel 3
+    poses = scene_poses(dict(actors=dict(cube=actor), articulations=dict(arm=robot), controller={}))
+    assert poses.tolist() == [[*range(7), *range(100, 107), 113.0, 114.0, 115.0]]
+    with pytest.raises(ValueError, match="no actor or articulation"):
+        scene_poses(dict(controller={}))
+
+
+@pytest.mark.slow
+def test_the_tree_holds_the_scene_poses_of_every_node_and_of_the_demos_ends(stock_pipeline):  # noqa: F811
+    from drem_maniskill.pipeline.tree.expert import load_expert
+    from drem_maniskill.utils.state import scene_poses, state_at
+
+    demo = load_expert(stock_pipeline["expert"])
+    with h5py.File(stock_pipeline["tree"]) as f:
+        poses, depth = torch.as_tensor(f["poses"][()]), f["depth"][()]
+        first, last = torch.as_tensor(f["expert/first/poses"][()]), torch.as_tensor(f["expert/last/poses"][()])
+    assert poses.shape == (len(depth), scene_poses(state_at(demo.states, 0)).shape[1])
+    torch.testing.assert_close(first, scene_poses(state_at(demo.states, 0))[0])
+    torch.testing.assert_close(last, scene_poses(state_at(demo.states, demo.length - 1))[0])
+    torch.testing.assert_close(poses[depth == 0][0], last)  # the root is the demo's goal
+    assert (poses.std(0) > 1e-3).sum() >= 3  # the children moved the arm's joints
+
+
+@pytest.mark.slow
+def test_a_model_reading_poses_pays_for_where_the_objects_are(stock_pipeline, tmp_path):  # noqa: F811
+    """A poses-only reward trained on the tree: its statistics are the tree's, and moving the peg alone changes
+    what it pays (a camera-free reward that reads the objects)."""
+    from mani_skill.utils.structs import Pose
+
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.pipeline.dataset import TreeDataset
+    from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
+
+    config = TrainConfig.preset("tiny", iterations=6, model=ModelConfig(image_size=64, modalities=("poses",)))
+    checkpoint = train_reward(stock_pipeline["tree"], str(tmp_path / "reward"), config, progress=False)
+    env = gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose")
+    try:
+        reward = DREMReward.from_checkpoint(checkpoint, env)
+        data = TreeDataset(stock_pipeline["tree"], reward.model.config)
+        torch.testing.assert_close(reward.model.poses_mean, data.poses.mean(0))
+        assert reward.camera_uids == [] and reward.model.config.poses_size == data.poses.shape[1]
+        env.reset(seed=3)
+        before = reward.reward(env.unwrapped, None)
+        peg = env.unwrapped.peg
+        peg.set_pose(Pose.create_from_pq(p=peg.pose.p + torch.tensor([0.0, 0.1, 0.0]), q=peg.pose.q))
+        after = reward.reward(env.unwrapped, None)
+        assert before.shape == (1,) and torch.isfinite(after).all() and not torch.allclose(before, after)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_a_poses_model_needs_a_tree_with_poses(stock_pipeline, tmp_path):  # noqa: F811
+    import shutil
+
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.pipeline.dataset import TreeDataset
+
+    old = tmp_path / "tree.h5"
+    shutil.copy(stock_pipeline["tree"], old)
+    with h5py.File(old, "a") as f:
+        del f["poses"]
+    with pytest.raises(ValueError, match="holds no scene poses.*re-sample"):
+        TreeDataset(str(old), ModelConfig(image_size=64, modalities=("fixed", "poses")))
