@@ -29,6 +29,9 @@ DEMO_SEEDS = {"sampler": {"seeds_from_demo": True}}
 THREE_ROUNDS = {"rounds": {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}}
 # The trees' own resolution (the stock cameras render 128 px): a 4 cm cube is about 4 px wide at 64 px.
 FULL_RESOLUTION = {"train": {"model": {"image_size": 128}}}
+# The scene's poses from the sim state (beside or instead of the camera): the objects' place, not only the arm's.
+POSES = {"train": {"model": {"modalities": ["poses"]}}}
+CAMERA_POSES = {"train": {"model": {"modalities": ["fixed", "poses"]}}}
 # Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
     "base": (),
@@ -42,12 +45,17 @@ VARIANTS = {
     "five_trees_demo_seeds": (FIVE_TREES, DEMO_SEEDS),
     "five_trees_demo_seeds_three_rounds": (FIVE_TREES, DEMO_SEEDS, THREE_ROUNDS),
     "five_trees_128px": (FIVE_TREES, FULL_RESOLUTION),
+    "five_trees_poses": (FIVE_TREES, POSES),
+    "five_trees_camera_poses": (FIVE_TREES, CAMERA_POSES),
+    "five_trees_poses_three_rounds": (FIVE_TREES, POSES, THREE_ROUNDS),
 }
 # A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
 # measure the same trees) and, where it only adds rounds, from that one's reward too.
 BUILDS_ON = {"five_trees_three_rounds": ("five_trees", True),
              "five_trees_demo_seeds_three_rounds": ("five_trees_demo_seeds", True),
-             "five_trees_128px": ("five_trees", False)}
+             "five_trees_128px": ("five_trees", False),
+             "five_trees_camera_poses": ("five_trees_poses", False),
+             "five_trees_poses_three_rounds": ("five_trees_poses", True)}
 RESULTS = Path("docs/results/general_recipe")
 
 
