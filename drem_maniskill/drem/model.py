@@ -36,7 +36,8 @@ class ModelConfig:
     """Architecture; defaults are the paper's."""
 
     modalities: tuple = ("fixed", "wrist", "ft")
-    """Inputs: the fixed camera, the wrist camera and the wrist F/T history (``ft``); without ``ft``, image-only."""
+    """Inputs: the fixed camera, the wrist camera and the wrist F/T history (``ft``); without ``ft``, image-only.
+    ``poses`` (beyond the paper): the scene's poses from the sim state."""
     image_size: int = 128
     """Side of the square images the encoder takes, in pixels (a multiple of 64)."""
     ft_history: int = 8
