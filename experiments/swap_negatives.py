@@ -67,7 +67,8 @@ def main() -> None:
         work = out / f"iterations_{iterations}"
         checkpoint = work / "reward" / "drem.pt"
         if not checkpoint.exists():
-            config = r.train_config(modalities=dataset_modalities(str(trees[0])), iterations=iterations)
+            modalities = r.train["model"].get("modalities") or dataset_modalities(str(trees[0]))
+            config = r.train_config(modalities=modalities, iterations=iterations)
             train_reward(str(trees[0]), str(checkpoint.parent), config, negatives=negatives,
                          trees=[str(t) for t in trees[1:]])
         quality_path = work / "examination" / "quality.json"
