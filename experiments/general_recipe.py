@@ -32,6 +32,8 @@ FULL_RESOLUTION = {"train": {"model": {"image_size": 128}}}
 # The scene's poses from the sim state (beside or instead of the camera): the objects' place, not only the arm's.
 POSES = {"train": {"model": {"modalities": ["poses"]}}}
 CAMERA_POSES = {"train": {"model": {"modalities": ["fixed", "poses"]}}}
+# Scenes with the robot from one depth of the demo and the objects from a deeper one, labelled by the objects' depth.
+SWAP = {"scene_swap": {"negatives": True}}
 # Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
     "base": (),
@@ -48,6 +50,8 @@ VARIANTS = {
     "five_trees_poses": (FIVE_TREES, POSES),
     "five_trees_camera_poses": (FIVE_TREES, CAMERA_POSES),
     "five_trees_poses_three_rounds": (FIVE_TREES, POSES, THREE_ROUNDS),
+    "five_trees_poses_swap": (FIVE_TREES, POSES, SWAP),
+    "five_trees_poses_swap_three_rounds": (FIVE_TREES, POSES, SWAP, THREE_ROUNDS),
 }
 # A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
 # measure the same trees) and, where it only adds rounds, from that one's reward too.
@@ -55,7 +59,9 @@ BUILDS_ON = {"five_trees_three_rounds": ("five_trees", True),
              "five_trees_demo_seeds_three_rounds": ("five_trees_demo_seeds", True),
              "five_trees_128px": ("five_trees", False),
              "five_trees_camera_poses": ("five_trees_poses", False),
-             "five_trees_poses_three_rounds": ("five_trees_poses", True)}
+             "five_trees_poses_three_rounds": ("five_trees_poses", True),
+             "five_trees_poses_swap": ("five_trees_poses", False),
+             "five_trees_poses_swap_three_rounds": ("five_trees_poses_swap", True)}
 RESULTS = Path("docs/results/general_recipe")
 
 

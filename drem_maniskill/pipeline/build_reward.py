@@ -7,7 +7,8 @@ interrupted build is finished by running the same command again:
 1. demo: the committed demo the recipe names, else ``record-expert`` -> ``expert/expert.h5``;
 2. sample: backward sampling -> ``tree.h5`` (and ``tree_<k>.h5`` from the demo's episode ``k`` where ``[demo] trees``
    asks for more than one);
-3. train: the reward -> ``reward/drem.pt``; where the recipe asks for policy rounds, they fine-tune it on hard
+3. scene-swap negatives, where the recipe asks for them -> ``scene_swap/negatives_<k>.h5`` (one per tree);
+   train: the reward -> ``reward/drem.pt``; where the recipe asks for policy rounds, they fine-tune it on hard
    negatives -> ``rounds/drem.pt`` (``rounds/round_<k>/``); examine the last -> ``examination/``;
 4. the image-only twin, where the recipe asks for it -> ``reward_image/``, ``examination_image/``;
 5. calibrate: the support guard's thresholds -> ``support.json``;
@@ -43,8 +44,9 @@ ROUNDS_PUBLISHED = {"reward/drem.pt": "rounds/drem.pt", "reward_image/drem.pt": 
 _TRAINED = ("reward", "rounds", "examination", "reward_image", "rounds_image", "examination_image", "support.json")
 # Recipe section -> the work-folder outputs made from it (the stages after it read those outputs).
 MADE_FROM = {
-    "demo": ("expert", "tree.h5", "tree_<k>.h5", "tree.h5.partial", *_TRAINED),
+    "demo": ("expert", "tree.h5", "tree_<k>.h5", "tree.h5.partial", "scene_swap", *_TRAINED),
     "sampler": ("tree.h5", "tree_<k>.h5", "tree.h5.partial", *_TRAINED),
+    "scene_swap": ("scene_swap", *_TRAINED),
     "train": _TRAINED,
     "rounds": ("rounds", "rounds_image", "examination", "examination_image", "support.json"),
     "image_twin": ("reward_image", "examination_image"),
@@ -73,9 +75,13 @@ def build_reward(task: str, scale: str = FULL, out: Optional[Union[str, Path]] =
     tree = stage(task, "sample", work / "tree.h5", lambda p: _sample(str(expert), str(p), r))
     trees = [stage(task, f"sample episode {k}", work / f"tree_{k}.h5",
                    lambda p, k=k: _sample(str(expert), str(p), r, episode=k)) for k in range(1, r.demo["trees"])]
-    checkpoint = model_stages(r, tree, work, "", r.train["model"].get("modalities"), trees)
+    negatives = []
+    if r.scene_swap["negatives"]:
+        negatives = [stage(task, f"scene-swap negatives {k}", work / "scene_swap" / f"negatives_{k}.h5",
+                           lambda p, k=k: _swap_negatives(str(expert), p, r, k)) for k in range(r.demo["trees"])]
+    checkpoint = model_stages(r, tree, work, "", r.train["model"].get("modalities"), trees, negatives)
     if r.image_twin["enabled"]:
-        model_stages(r, tree, work, "_image", r.image_twin["modalities"], trees)
+        model_stages(r, tree, work, "_image", r.image_twin["modalities"], trees, negatives)
     if r.calibrate["enabled"]:
         stage(task, "calibrate", work / "support.json", lambda p: _calibrate(checkpoint, tree, p, r))
     publish(task, work, dest)
@@ -86,6 +92,12 @@ def _sample(expert: str, out: str, r: Recipe, episode: int = 0) -> str:
     from drem_maniskill.pipeline import backward_sample
 
     return backward_sample(expert, out, r.sampler_config(episode=episode))
+
+
+def _swap_negatives(expert: str, out: Path, r: Recipe, episode: int) -> None:
+    from drem_maniskill.pipeline.scene_swap import swap_negatives
+
+    swap_negatives(expert, str(out), episode=episode, lag=r.scene_swap["lag"], max_pairs=r.scene_swap["max_pairs"])
 
 
 def _calibrate(checkpoint: Path, tree: Path, out: Path, r: Recipe) -> None:
@@ -127,30 +139,32 @@ def check_demo_task(h5: Path, task: str) -> None:
                           f"point [demo] expert at a {task} demo, or drop it to record one")
 
 
-def model_stages(r: Recipe, tree: Path, work: Path, suffix: str, modalities, trees=()) -> Path:
-    """Train a reward on ``tree`` and ``trees`` (``modalities``; None: all the tree holds) and examine it; returns its
-    checkpoint."""
+def model_stages(r: Recipe, tree: Path, work: Path, suffix: str, modalities, trees=(), negatives=()) -> Path:
+    """Train a reward on ``tree``, ``trees`` and the negatives files ``negatives`` (``modalities``; None: all the tree
+    holds) and examine it; returns its checkpoint."""
     from drem_maniskill.pipeline.dataset import dataset_modalities
     from drem_maniskill.pipeline.examine import examine
     from drem_maniskill.pipeline.train_reward import train_reward
 
     config = r.train_config(modalities=modalities or dataset_modalities(str(tree)))
     checkpoint = stage(r.task, f"train{suffix}", work / f"reward{suffix}" / "drem.pt",
-                       lambda p: train_reward(str(tree), str(p.parent), config, trees=[str(t) for t in trees]))
+                       lambda p: train_reward(str(tree), str(p.parent), config, trees=[str(t) for t in trees],
+                                              negatives=[str(n) for n in negatives]))
     rounds = r.rounds_config()
     if rounds.rounds > 0:
         checkpoint = stage(r.task, f"rounds{suffix}", work / f"rounds{suffix}" / "drem.pt",
-                           lambda p: _rounds(r.task, tree, checkpoint, config, rounds, p, trees))
+                           lambda p: _rounds(r.task, tree, checkpoint, config, rounds, p, trees, negatives))
     stage(r.task, f"examine{suffix}", work / f"examination{suffix}" / "quality.json",
           lambda p: examine(r.task, str(checkpoint), seeds=r.exam_seeds(), out_dir=str(p.parent)))
     return checkpoint
 
 
-def _rounds(task: str, tree: Path, checkpoint: Path, config, rounds, out: Path, trees=()) -> None:
+def _rounds(task: str, tree: Path, checkpoint: Path, config, rounds, out: Path, trees=(), negatives=()) -> None:
     """The policy rounds from ``checkpoint``; their last checkpoint copied to ``out`` (atomically)."""
     from drem_maniskill.pipeline.policy_rounds import run_rounds
 
-    last = run_rounds(task, str(tree), checkpoint, config, rounds, out.parent, [str(t) for t in trees])
+    last = run_rounds(task, str(tree), checkpoint, config, rounds, out.parent, [str(t) for t in trees],
+                      [str(n) for n in negatives])
     tmp = out.with_name(out.name + ".tmp")
     shutil.copyfile(last, tmp)
     tmp.replace(out)

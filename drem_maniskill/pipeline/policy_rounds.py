@@ -209,11 +209,11 @@ def _record_after(path: Path, negatives: Path) -> None:
 
 
 def run_rounds(task: str, tree: str, checkpoint, train_config, config: RoundsConfig, out,
-               trees: Sequence[str] = ()) -> Path:
-    """Every round from the paper's ``checkpoint`` (trained on ``tree`` and ``trees``); the last round's checkpoint
-    (``checkpoint`` with no rounds)."""
+               trees: Sequence[str] = (), negatives: Sequence[str] = ()) -> Path:
+    """Every round from ``checkpoint`` (trained on ``tree``, ``trees`` and the negatives files ``negatives``, which
+    every round trains on too); the last round's checkpoint (``checkpoint`` with no rounds)."""
     out = Path(out)
-    current, negatives = Path(checkpoint), []
+    current, negatives = Path(checkpoint), list(negatives)
     for k in range(1, config.rounds + 1):
         current, negatives = run_round(task, tree, current, train_config, config, k, out, negatives, trees)
     return current

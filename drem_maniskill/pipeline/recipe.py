@@ -11,6 +11,9 @@ Sections (each optional; what is left out takes the defaults below or the config
 * ``[train]``: ``TrainConfig`` fields, the model's under ``[train.model]`` (``ModelConfig``); without
   ``modalities`` the model reads every modality the tree holds.
 * ``[image_twin]``: ``enabled`` trains the image-only twin ``drem_image.pt`` on the same tree with ``modalities``.
+* ``[scene_swap]``: ``negatives`` (beyond the paper) adds, for every demo episode sampled into a tree, the scenes with
+  the robot at one depth of the demo and every other body at a deeper one, labelled by the objects' depth
+  (``pipeline.scene_swap.swap_negatives``; ``lag``, ``max_pairs``), to the training set and the policy rounds'.
 * ``[examine]``: the held-out seeds ``first_seed`` .. ``first_seed + episodes - 1``.
 * ``[calibrate]``: ``enabled`` writes the support guard's thresholds ``support.json`` (``quantile``).
 * ``[rounds]``: ``RoundsConfig`` (``pipeline.policy_rounds``): policy rounds of hard negatives after training;
@@ -41,10 +44,11 @@ GENERAL = "default"
 SECTION_DEFAULTS = {
     "demo": dict(expert=None, seed=1000, episodes=1, trees=1, descent_step=None, descend_from=None, env_kwargs={}),
     "image_twin": dict(enabled=False, modalities=["fixed", "wrist"]),
+    "scene_swap": dict(negatives=False, lag=4, max_pairs=500),
     "examine": dict(first_seed=0, episodes=20),
     "calibrate": dict(enabled=True, quantile=None),
 }
-SECTIONS = ("demo", "sampler", "train", "rounds", "image_twin", "examine", "calibrate")
+SECTIONS = ("demo", "sampler", "scene_swap", "train", "rounds", "image_twin", "examine", "calibrate")
 
 # A task without a recipe file: the paper's sampler (M = 500, no extra phases), 20,000 iterations at 64 px.
 GENERAL_DEFAULTS = {
@@ -70,6 +74,7 @@ class Recipe:
     source: str
     demo: dict
     sampler: dict
+    scene_swap: dict
     train: dict
     rounds: dict
     image_twin: dict

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from drem_maniskill.drem.checkpoint import load_checkpoint
+from drem_maniskill.drem.model import ModelConfig
 from drem_maniskill.experts.control import ee_control_kwargs
 from drem_maniskill.pipeline.recipe import GENERAL, TASKS_DIR, RecipeError, load_recipe, recipe_path
 from drem_maniskill.pipeline.tree.config import SamplerConfig
@@ -46,9 +47,9 @@ def test_shipped_checkpoint_header_matches_its_recipe(task, checkpoint, quality)
     twin = checkpoint == "drem_image.pt"
     config = recipe.train_config(modalities=recipe.image_twin["modalities"] if twin else None)
     assert _without(header["train"]) == _without(asdict(config), MACHINE | {"model"})
-    # Checkpoints written before ModelConfig had an init field were all trained from PyTorch's default init.
-    model = {"init": "torch", **header["model"]}
-    assert model == json.loads(json.dumps(config.model.to_dict()))
+    # Read as loading reads it: a field a header predates takes the value it was trained with (init: PyTorch's).
+    model = ModelConfig.from_dict(header["model"]).to_dict()
+    assert json.loads(json.dumps(model)) == json.loads(json.dumps(config.model.to_dict()))
     assert header["image_size"] == config.model.image_size and header["modalities"] == list(config.model.modalities)
     assert json.loads((REWARDS / task / quality).read_text())["seeds"] == list(recipe.exam_seeds())
     assert header["env_kwargs"] == _demo_env_kwargs(recipe)
