@@ -92,7 +92,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
         torch.set_num_threads(config.threads)
     data = TreeDataset(dataset_path, config.model)
     data.add_trees(trees, config.model)
-    data.add_negatives(negatives, config.model)
+    negative_nodes = data.add_negatives(negatives, config.model)
     if data.poses is not None:  # the scene-poses vector's length is the env's, read from its tree
         config = replace(config, model=replace(config.model, poses_size=int(data.poses.shape[1])))
     torch.manual_seed(config.seed)
@@ -151,6 +151,8 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     bar.close()
     writer.close()
     forest = dict(trees=forest_record(dataset_path, trees)) if trees else {}
+    if negatives:
+        forest["negatives"] = dict(files=[Path(n).name for n in negatives], nodes=negative_nodes)
     return export_reward(model, data, config, out / "drem.pt", {**forest, **(extra_header or {})})
 
 

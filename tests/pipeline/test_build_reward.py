@@ -98,3 +98,26 @@ def test_a_forest_needs_as_many_demo_episodes_as_trees():
     with pytest.raises(RecipeError, match=r"trees = 3 needs 1 <= trees <= episodes \(= 2\)"):
         load_recipe("PushCube-v1", recipe={"demo": {"episodes": 2, "trees": 3}})
 
+
+
+@pytest.mark.slow
+def test_scene_swap_negatives_are_written_per_tree_and_trained_on(tmp_path):
+    import h5py
+
+    from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, merge
+
+    recipe = merge(GENERAL_DEFAULTS, {"demo": {"seed": 1000, "episodes": 2, "trees": 2},
+                                      "scene_swap": {"negatives": True, "lag": 4, "max_pairs": 30},
+                                      "train": {"model": {"modalities": ["fixed", "poses"]}},
+                                      "calibrate": {"enabled": False},
+                                      "scales": {"tiny": {"sampler": {"max_depth": 120}}}})
+    path = build_reward("PushCube-v1", scale="tiny", out=tmp_path, recipe=recipe)
+    header, _ = load_checkpoint(str(path))
+    counts = []
+    for k in range(2):
+        with h5py.File(tmp_path / "scene_swap" / f"negatives_{k}.h5") as f:
+            depth, robot_depth = f["depth"][()], f["step"][()]
+            assert f["poses"].shape[0] == len(depth) == 30 and (depth - robot_depth > 4).all()
+            counts.append(len(depth))
+    assert header["negatives"] == dict(files=["negatives_0.h5", "negatives_1.h5"], nodes=sum(counts))
+    assert header["modalities"] == ["fixed", "poses"] and header["model"]["poses_size"] > 0
