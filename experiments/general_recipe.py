@@ -86,6 +86,8 @@ def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
                 final_reward_auroc=quality["final_reward_auroc"],
                 final_reward_auroc_expert_noisy=quality.get("final_reward_auroc_expert_noisy"),
                 random_mean_reward=quality["random_mean_reward"],
+                robot_only_over_expert=quality.get("robot_only_over_expert"),
+                objects_only_over_expert=quality.get("objects_only_over_expert"),
                 success_rate=quality["success_rate"], fit=header.get("fit"), rounds=header.get("rounds", []),
                 trees=header.get("trees", []))
 
