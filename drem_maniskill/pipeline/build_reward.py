@@ -17,6 +17,7 @@ interrupted build is finished by running the same command again:
 
 from __future__ import annotations
 
+import copy
 import filecmp
 import json
 import shutil
@@ -26,7 +27,7 @@ from pathlib import Path
 from typing import Callable, Optional, Union
 
 from drem_maniskill.drem.checkpoint import REWARDS_DIRS
-from drem_maniskill.pipeline.recipe import FULL, Recipe, RecipeError, load_recipe
+from drem_maniskill.pipeline.recipe import FULL, SECTION_DEFAULTS, Recipe, RecipeError, load_recipe
 
 DEFAULT_OUT = Path("outputs") / "build_reward"
 # Work-folder file -> its name in the published reward folder (as in rewards/<id>/).
@@ -221,7 +222,9 @@ def check_same_recipe(path: Path, r: Recipe) -> None:
 
 def _outcome(recipe: dict, section: str):
     """A recipe section without the settings that change how fast a stage runs, not what it makes."""
-    value = recipe.get(section) or {}  # a section the recorded recipe predates took its defaults
+    value = recipe.get(section)
+    if value is None:  # a section the recorded recipe predates took its defaults
+        value = copy.deepcopy(SECTION_DEFAULTS.get(section, {}))
     if section in MACHINE_FIELDS and isinstance(value, dict):
         return {k: v for k, v in value.items() if k not in MACHINE_FIELDS[section]}
     return value

@@ -52,6 +52,18 @@ def test_outputs_of_another_recipe_are_refused(tmp_path):
         check_same_recipe(tmp_path / "recipe.json", examined)
 
 
+def test_outputs_recorded_before_a_section_existed_resume_when_it_keeps_its_defaults(tmp_path):
+    recipe = load_recipe("PegInHole-v1")
+    recorded = json.loads(json.dumps(recipe.to_dict()))
+    del recorded["scene_swap"]  # a build made before [scene_swap] existed
+    (tmp_path / "recipe.json").write_text(json.dumps(recorded))
+    check_same_recipe(tmp_path / "recipe.json", recipe)
+    raw = _raw("PegInHole-v1")
+    raw["scene_swap"] = {"negatives": True}
+    with pytest.raises(RecipeError, match=r"differs in scene_swap\); delete what those settings made \(examination"):
+        check_same_recipe(tmp_path / "recipe.json", load_recipe("PegInHole-v1", recipe=raw))
+
+
 def test_a_machine_setting_does_not_block_resuming(tmp_path):
     raw = _raw("PegInHole-v1")
     check_same_recipe(tmp_path / "recipe.json", load_recipe("PegInHole-v1", recipe=raw))
