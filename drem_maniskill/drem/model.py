@@ -7,7 +7,7 @@ MLP to the 128-d latent ``h(s)``. Decoder: a 7-layer transposed CNN back to each
 config (``modalities``), so the paper's "Image learned" baseline is this model without F/T.
 
 Beyond the paper, ``poses``: every body's pose and the robot's joint positions, read from the simulator's state
-(``envs.adapter.scene_poses``), through an MLP to 64-d and back. It is for tasks whose objects are too small in the
+(``utils.state.scene_poses``), through an MLP to 64-d and back. It is for tasks whose objects are too small in the
 cameras to be read (a 4 cm cube is a few pixels at 64 px): the latent can then place the objects, not only the arm.
 """
 

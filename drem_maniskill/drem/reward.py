@@ -123,7 +123,7 @@ class DREMReward(nn.Module):
 
     @property
     def uses_poses(self) -> bool:
-        """Whether the model reads the scene's poses (``envs.adapter.scene_poses``)."""
+        """Whether the model reads the scene's poses (``utils.state.scene_poses``)."""
         return "poses" in self.model.config.modalities
 
     def inputs(self, env, obs) -> dict:
