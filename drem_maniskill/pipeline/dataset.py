@@ -22,8 +22,11 @@ def dataset_modalities(path: str) -> tuple:
             header = tree_file.read_header(f)
     except (OSError, ValueError):
         return ModelConfig().modalities  # TreeDataset reports what is wrong with the file
+    ft = ("ft",) if header.get("has_ft", True) else ()
+    if not header.get("config", {}).get("images", True):
+        return ("poses",) + ft  # sampled without images
     cams = header.get("camera_map", dict(CAMERA_OF))
-    return tuple(m for m in ("fixed", "wrist") if m in cams) + (("ft",) if header.get("has_ft", True) else ())
+    return tuple(m for m in ("fixed", "wrist") if m in cams) + ft
 
 
 class TreeDataset:
@@ -39,6 +42,10 @@ class TreeDataset:
                                  f"{tree_file.RESAMPLE}") from err
             self.camera_map = self.header.get("camera_map", dict(CAMERA_OF))
             absent = [c for c in config.cameras if c not in self.camera_map or f"{c}_rgb" not in f]
+            if absent and not self.header["config"].get("images", True):
+                raise ValueError(f"{path} was sampled without images (sampler images = false), so a model reading "
+                                 f"{list(config.cameras)} cannot train on it: train one that reads no camera "
+                                 "(--modalities poses) or re-sample with images")
             if absent:
                 raise ValueError(
                     f"{path} has no {absent} camera images ({self.header.get('env_id')} gives "

@@ -172,6 +172,11 @@ def resolve(raw: dict, task: str, scale: str, source: str) -> Recipe:
     if trees < 1 or trees > episodes:  # a committed demo with fewer episodes is refused when its tree is sampled
         raise RecipeError(f"{source} (scale {scale}): [demo] trees = {trees} needs 1 <= trees <= episodes "
                           f"(= {episodes}): one progress tree per demo episode")
+    read = [*(sections["train"]["model"].get("modalities") or []),
+            *(sections["image_twin"]["modalities"] if sections["image_twin"]["enabled"] else [])]
+    if not sections["sampler"].get("images", True) and set(read) & {"fixed", "wrist"}:
+        raise RecipeError(f"{source} (scale {scale}): [sampler] images = false samples no camera images, but the "
+                          f"models read {sorted(set(read) & {'fixed', 'wrist'})}: read poses only, or sample images")
     try:  # the config classes check the values (a modality's name, an image size), once here for every scale
         recipe.sampler_config()
         recipe.train_config()

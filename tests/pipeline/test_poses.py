@@ -80,3 +80,31 @@ def test_a_poses_model_needs_a_tree_with_poses(stock_pipeline, tmp_path):  # noq
         del f["poses"]
     with pytest.raises(ValueError, match="holds no scene poses.*re-sample"):
         TreeDataset(str(old), ModelConfig(image_size=64, modalities=("fixed", "poses")))
+
+
+@pytest.mark.slow
+def test_a_tree_sampled_without_images_holds_poses_and_trains_only_a_camera_free_model(tmp_path):
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.experts.recording import record_expert
+    from drem_maniskill.pipeline import SamplerConfig, backward_sample
+    from drem_maniskill.pipeline.dataset import TreeDataset, dataset_modalities
+
+    rec = record_expert("PushCube-v1", str(tmp_path / "expert"), seeds=[1000])
+    config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, images=False)
+    tree = backward_sample(rec.h5_path, str(tmp_path / "tree.h5"), config, progress=False)
+    with h5py.File(tree) as f:
+        assert "fixed_rgb" not in f and f["poses"].shape[0] == f["depth"].shape[0] > 4
+        assert "expert/last/fixed_rgb" in f  # the demo's own images stay
+    assert dataset_modalities(tree) == ("poses",)
+    assert TreeDataset(tree, ModelConfig(image_size=64, modalities=("poses",))).poses.shape[0] > 4
+    with pytest.raises(ValueError, match="sampled without images.*--modalities poses"):
+        TreeDataset(tree, ModelConfig(image_size=64, modalities=("fixed", "poses")))
+
+
+def test_a_recipe_that_samples_no_images_cannot_train_a_camera_model():
+    from drem_maniskill.pipeline.recipe import RecipeError, load_recipe
+
+    recipe = {"sampler": {"images": False}, "train": {"model": {"modalities": ["fixed", "poses"]}}}
+    with pytest.raises(RecipeError, match=r"images = false samples no camera images, but the models read \['fixed'\]"):
+        load_recipe("PushCube-v1", recipe=recipe)
+    assert load_recipe("PushCube-v1", recipe={**recipe, "train": {"model": {"modalities": ["poses"]}}})

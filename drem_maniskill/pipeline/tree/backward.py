@@ -106,7 +106,8 @@ def backward_sample(expert_path: str, out_path: str, config: Optional[SamplerCon
     out_path.parent.mkdir(parents=True, exist_ok=True)
     partial = tree_file.partial_path(out_path)
     expert = load_expert(expert_path, config.episode)
-    sampler = ChildSampler(expert.env_id, expert.env_kwargs, expert.episode_seed, start_radius=config.start_radius)
+    sampler = ChildSampler(expert.env_id, expert.env_kwargs, expert.episode_seed, start_radius=config.start_radius,
+                           images=config.images)
     pool = ChildPool(sampler, config.seed, config.workers, config.randomize_colors, config.randomize_placement)
     try:
         _check(expert_path, expert, sampler, config)
@@ -205,7 +206,7 @@ def _goal_node(expert: ExpertTrajectory, expert_ee: np.ndarray, sampler: ChildSa
     """The root node's rows (the goal state, as the expert's last step recorded it), its flat state and start flag."""
     flat = _demo_seed(expert, sampler, 0)["state"][None]
     in_region = bool(sampler.in_start_region()[0])
-    root = {f"{m}_rgb": expert.last_obs[f"{m}_rgb"][None] for m in expert.camera_map}
+    root = {f"{m}_rgb": expert.last_obs[f"{m}_rgb"][None] for m in expert.camera_map if sampler.images}
     extras = dict(colors=sampler.adapter.colors(), placement=sampler.adapter.placements(),
                   tip_in_socket=sampler.adapter.tip_in_socket())  # colours: the expert episode's, from its seed
     root.update({k: v[:1].cpu().numpy() for k, v in extras.items() if v is not None})

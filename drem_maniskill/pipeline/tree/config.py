@@ -66,6 +66,9 @@ class SamplerConfig:
     child (``N = 1`` only; beyond the paper): the objects stay where the demo had them. For tasks whose random
     actions cannot carry an object back (a pushed cube stays at the goal), where the paper's chain holds only the
     hand's progress."""
+    images: bool = True
+    """Render the cameras at every node. False: a tree for a model that reads no camera (``poses`` alone, beyond the
+    paper), sampled without rendering, many times faster on the CPU; the demo's own images are kept."""
     phases: dict = field(default_factory=dict)
     """Settings of every extra phase by name (``phases.PHASES``); a phase runs when its size field is above 0."""
 
