@@ -34,6 +34,8 @@ POSES = {"train": {"model": {"modalities": ["poses"]}}}
 CAMERA_POSES = {"train": {"model": {"modalities": ["fixed", "poses"]}}}
 # Scenes with the robot from one depth of the demo and the objects from a deeper one, labelled by the objects' depth.
 SWAP = {"scene_swap": {"negatives": True}}
+# Trees for a model that reads no camera, sampled without rendering.
+NO_IMAGES = {"sampler": {"images": False}}
 # Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
     "base": (),
@@ -52,6 +54,7 @@ VARIANTS = {
     "five_trees_poses_three_rounds": (FIVE_TREES, POSES, THREE_ROUNDS),
     "five_trees_poses_swap": (FIVE_TREES, POSES, SWAP),
     "five_trees_poses_swap_three_rounds": (FIVE_TREES, POSES, SWAP, THREE_ROUNDS),
+    "unrendered_five_trees_poses_swap_three_rounds": (FIVE_TREES, POSES, NO_IMAGES, SWAP, THREE_ROUNDS),
 }
 # A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
 # measure the same trees) and, where it only adds rounds, from that one's reward too.
