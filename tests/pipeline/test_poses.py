@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import h5py
+import numpy as np
 import pytest
 import torch
 
@@ -92,9 +95,14 @@ def test_a_tree_sampled_without_images_holds_poses_and_trains_only_a_camera_free
     rec = record_expert("PushCube-v1", str(tmp_path / "expert"), seeds=[1000])
     config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, images=False)
     tree = backward_sample(rec.h5_path, str(tmp_path / "tree.h5"), config, progress=False)
-    with h5py.File(tree) as f:
+    rendered = backward_sample(rec.h5_path, str(tmp_path / "rendered.h5"), dataclasses.replace(config, images=True),
+                               progress=False)
+    with h5py.File(tree) as f, h5py.File(rendered) as g:
         assert "fixed_rgb" not in f and f["poses"].shape[0] == f["depth"].shape[0] > 4
         assert "expert/last/fixed_rgb" in f  # the demo's own images stay
+        # Rendering changes nothing else: the same nodes, depths and poses as the tree sampled with images.
+        for key in ("depth", "parent", "poses", "tcp_pose", "in_start_region"):
+            assert np.array_equal(f[key][()], g[key][()]), key
     assert dataset_modalities(tree) == ("poses",)
     assert TreeDataset(tree, ModelConfig(image_size=64, modalities=("poses",))).poses.shape[0] > 4
     with pytest.raises(ValueError, match="sampled without images.*--modalities poses"):
