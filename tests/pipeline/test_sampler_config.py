@@ -17,7 +17,7 @@ from drem_maniskill.pipeline.tree.phases import FIRST_STREAM, PHASES, Phase, reg
 SHIPPED = Path(__file__).parents[2] / "rewards"
 
 NESTED_USB = {
-    "num_children": 500, "expert_step_scale": 4.0, "workers": 2,
+    "num_children": 500, "expert_step_scale": 4.0, "workers": 2, "max_depth": 80,
     "phases": {
         "outward": {"depth": 10, "lineages": 12, "children": 100, "elevations": [0.0, -35.0, -60.0]},
         "face": {"depth": 8, "lineages": 8, "children": 60, "step": 0.0015, "elevation": -30.0},
@@ -135,3 +135,11 @@ def test_a_registered_phase_runs_in_backward_sample_and_a_finished_tree_gains_it
         assert json.loads(f.attrs["header"])["config"]["phases"]["nudge"] == dict(count=3, scale=0.1)
         moved = np.linalg.norm(f["tcp_pose"][n:, :3] - f["tcp_pose"][0, :3], axis=1)
     assert np.all(moved > 0) and np.all(moved < 0.01)  # small moves: a tenth of the 2 cm full step
+
+
+def test_default_depth_limit_follows_the_demo():
+    # The measure walks back one demo step per depth: a 90-step demo (a PlugCharger-v1 episode) needs more than 80.
+    assert SamplerConfig().depth_limit(90) == 180 and SamplerConfig().depth_limit(16) == 80
+    assert SamplerConfig(max_depth=60).depth_limit(90) == 60
+    with pytest.raises(ValueError, match="max_depth must be >= 0"):
+        SamplerConfig(max_depth=-1)

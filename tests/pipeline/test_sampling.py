@@ -519,14 +519,14 @@ def test_seeds_from_the_demo_keep_a_pushed_cube_where_the_demo_had_it_and_the_pa
     assert np.linalg.norm(goal - start) > 0.05  # the demo pushes the cube
 
     cubes = {}
-    for anchored in (False, True):
-        config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, seeds_from_demo=anchored)
-        tree = backward_sample(rec.h5_path, str(tmp_path / f"tree_{anchored}.h5"), config, progress=False)
-        cubes[anchored] = _cube_positions(tree, expert.env_kwargs)
+    for from_demo in (False, True):
+        config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, seeds_from_demo=from_demo)
+        tree = backward_sample(rec.h5_path, str(tmp_path / f"tree_{from_demo}.h5"), config, progress=False)
+        cubes[from_demo] = _cube_positions(tree, expert.env_kwargs)
 
-    # Interrupted and resumed, the anchored tree is the same tree: the resumed seed is the demo's state again, not
-    # the chosen child (whose hand is a random step, centimetres here, off the demo's). Within PhysX's contact cache,
-    # which a saved state does not hold (under a millimetre).
+    # Interrupted and resumed, a tree seeded from the demo is the same tree: the resumed seed is the demo's state
+    # again, not the chosen child (whose hand is a random step, centimetres here, off the demo's). Within PhysX's
+    # contact cache, which a saved state does not hold (under a millimetre).
     config = SamplerConfig.preset("tiny", num_children=4, max_depth=5, seeds_from_demo=True)
     with pytest.raises(NoStartRegionError):
         backward_sample(rec.h5_path, str(tmp_path / "resumed.h5"), config, progress=False)
@@ -539,7 +539,7 @@ def test_seeds_from_the_demo_keep_a_pushed_cube_where_the_demo_had_it_and_the_pa
     deepest = max(cubes[True])
     with h5py.File(tmp_path / "tree_True.h5", "r") as f:  # its nodes reach the start region, as training needs
         assert f["in_start_region"][()].any() and f["in_start_region"][f["is_seed"][()]][-1]
-    # Anchored: a child at depth d is one random step from the demo's state d - 1 steps before its goal.
+    # Seeded from the demo: a child at depth d is one random step from the demo's state d - 1 steps before its goal.
     for d, cube in cubes[True].items():
         t = max(expert.length - 1 - (d - 1), 0)
         assert np.linalg.norm(cube - demo_cube[t]) < 0.02, (d, cube, demo_cube[t])

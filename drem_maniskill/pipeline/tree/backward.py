@@ -75,12 +75,14 @@ def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_
     goal = len(expert_ee) - 1
     needed = math.ceil(config.num_seeds * config.delta)
     gripper_weight = config.gripper_weight if pool.sampler.adapter.gripper_idx else 0.0
-    bar = progress_bar(total=config.max_depth, initial=depth, desc="backward sampling", unit="depth", enabled=progress)
+    limit = config.depth_limit(goal)
+    bar = progress_bar(total=limit, initial=depth, desc="backward sampling", unit="depth", enabled=progress)
     while (in_region := int(sum(bool(s["in_start_region"]) for s in seeds))) < needed:
-        if depth >= config.max_depth:
+        if depth >= limit:
             raise NoStartRegionError(
-                f"backward sampling reached max_depth={config.max_depth} with {in_region}/{len(seeds)} seeds in the "
-                f"start region (needed {needed}); raise --max-depth or --action-scale, or check the expert")
+                f"backward sampling reached max_depth={limit} (demo of {goal} steps) with {in_region}/{len(seeds)} "
+                f"seeds in the start region (needed {needed}); raise --max-depth or --action-scale, or check the "
+                f"expert")
         scale = action_scale_at(depth, expert_ee, config, pool.sampler.translation_limit)
         parents = seeds if demo_seed is None else [demo_seed(depth)]
         merged = pool.children_of(parents, seed_nodes, depth, config.num_children, scale)

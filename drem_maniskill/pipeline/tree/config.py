@@ -34,8 +34,9 @@ class SamplerConfig:
     """N: seeds kept per depth (the paper's expert-guided measure uses 1)."""
     delta: float = 0.5
     """Stop when at least ceil(N * delta) seeds are in the start region."""
-    max_depth: int = 80
-    """Fail (resumably) when the start region is not reached by this depth."""
+    max_depth: int = 0
+    """Fail (resumably) when the start region is not reached by this depth; 0: the larger of 80 and twice the demo's
+    length (the measure walks back one demo step per depth, so a longer demo needs a deeper tree)."""
     action_scale: float = 1.0
     """Random arm actions are uniform in [-action_scale, action_scale] (normalised); gripper ones always in [-1, 1]."""
     expert_step_scale: float = 0.0
@@ -73,6 +74,8 @@ class SamplerConfig:
     """Settings of every extra phase by name (``phases.PHASES``); a phase runs when its size field is above 0."""
 
     def __post_init__(self):
+        if self.max_depth < 0:
+            raise ValueError(f"max_depth must be >= 0 (0: from the demo's length), got {self.max_depth}")
         if self.seeds_from_demo and self.num_seeds != 1:
             raise ValueError(f"seeds_from_demo keeps one seed per depth, the demo's state; got num_seeds="
                              f"{self.num_seeds}: set num_seeds to 1 or turn seeds_from_demo off")
@@ -82,6 +85,10 @@ class SamplerConfig:
         settings = {name: _phase_settings(name, self.phases.get(name, {})) for name in PHASES}
         # A phase that is off has its defaults: its other settings change nothing, so they never tell configs apart.
         self.phases = {name: s if PHASES[name].is_on(s) else PHASES[name].config() for name, s in settings.items()}
+
+    def depth_limit(self, demo_steps: int) -> int:
+        """The depth at which sampling gives up, for a demo of ``demo_steps`` steps (``max_depth``, or its rule)."""
+        return self.max_depth if self.max_depth > 0 else max(80, 2 * int(demo_steps))
 
     def phases_on(self) -> dict:
         """The settings of the phases that run, by name, in the order they run."""
