@@ -555,3 +555,13 @@ def test_seeds_from_the_demo_keep_one_seed_per_depth():
     assert SamplerConfig.from_dict({"seeds_from_demo": True}).to_dict()["seeds_from_demo"] is True
     # A tree sampled one way does not resume the other way.
     assert not SamplerConfig(seeds_from_demo=True).can_resume(SamplerConfig())
+
+
+def test_a_demo_recorded_without_cameras_is_refused_with_what_to_do(tmp_path):
+    # A state-mode recording keeps its observations as one flat dataset; the tree needs the demo's images.
+    from drem_maniskill.experts.recording import record_expert
+    from drem_maniskill.pipeline.tree.expert import load_expert
+
+    rec = record_expert("PushCube-v1", str(tmp_path), seeds=[0], obs_mode="state", max_steps=2)
+    with pytest.raises(ValueError, match="no camera images in its observations: record the expert with obs_mode='rgb'"):
+        load_expert(rec.h5_path)

@@ -69,7 +69,8 @@ def load_expert(h5_path: str, episode: int = 0) -> ExpertTrajectory:
             traj = f[f"traj_{ep.get('episode_id', episode)}"]
             if "env_states" not in traj:
                 raise ValueError(f"{h5_path} has no env_states; record with RecordEpisode(record_env_state=True)")
-            obs = traj["obs"] if "obs" in traj else {}
+            # A state-mode recording stores its observations as one flat dataset, with no camera group in it.
+            obs = traj["obs"] if isinstance(traj.get("obs"), h5py.Group) else {}
             cams = _cameras_in(obs["sensor_data"]) if "sensor_data" in obs else {}
             if not cams:
                 raise ValueError(
