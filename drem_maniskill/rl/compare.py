@@ -11,6 +11,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from drem_maniskill.envs import is_insertion_task
 from drem_maniskill.rl.config import drem_form_used, overlap_env_used
 from drem_maniskill.rl.rewards import REWARDS, reward_checkpoint
 from drem_maniskill.rl.train_policy import file_sha256, read_eval_csv
@@ -79,9 +80,10 @@ def run_label(cfg: dict, pinned: Optional[dict] = None) -> str:
 
 
 def _normalised_inputs(cfg: dict) -> list:
-    """The policy inputs a run normalised: ``obs_norm`` less an F/T history its policy did not get."""
+    """The policy inputs a run normalised: ``obs_norm`` less an F/T history its policy did not get (ManiSkill's own
+    tasks have no F/T sensor)."""
     policy_ft = cfg.get("policy_ft", True)
-    gets_ft = cfg["reward"] == "drem" if policy_ft is None else bool(policy_ft)
+    gets_ft = is_insertion_task(cfg["task"]) and (cfg["reward"] == "drem" if policy_ft is None else bool(policy_ft))
     return [k for k in cfg.get("obs_norm") or () if k != "ft" or gets_ft]
 
 

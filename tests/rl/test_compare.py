@@ -126,3 +126,5 @@ def test_a_run_label_names_only_the_inputs_its_policy_normalised():
     assert "norm state," in labels["sparse"] + "," and "norm state+ft" not in labels["sparse"]
     assert "norm state+ft" in labels["drem"]
     assert "norm state+ft" in run_label(RLConfig.preset("light", reward="sparse").to_dict())  # every policy gets it
+    stock = run_label(RLConfig.preset("state", task="PushCube-v1", reward="drem").to_dict())
+    assert "norm state," in stock + "," and "+ft" not in stock  # a stock task has no F/T sensor
