@@ -44,13 +44,13 @@ def pipeline(tmp_path_factory):
 
 
 def tiny_checkpoint(path, env_id: str, modalities=("fixed", "wrist", "ft"),
-                    camera_uids=("fixed_camera", "wrist_camera")) -> str:
-    """An untrained, tiny DREM checkpoint for ``env_id``.
+                    camera_uids=("fixed_camera", "wrist_camera"), **model) -> str:
+    """An untrained, tiny DREM checkpoint for ``env_id``; ``model``: other ``ModelConfig`` fields.
 
     Stock tasks: ``modalities=("fixed", "wrist")`` and their cameras.
     """
     torch.manual_seed(0)
-    config = ModelConfig(modalities=modalities, image_size=64, image_dim=8, latent_dim=16, channels=(4,) * 6)
+    config = ModelConfig(modalities=modalities, image_size=64, image_dim=8, latent_dim=16, channels=(4,) * 6, **model)
     model = DREMModel(config)
     header = dict(env_id=env_id, env_kwargs={}, modalities=list(config.modalities), camera_uids=list(camera_uids),
                   image_size=config.image_size, ft_history=config.ft_history, render_style="lean",

@@ -183,14 +183,14 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
 def paid_on_negatives(reward, path, batch_size: int = 128) -> np.ndarray:
     """What ``reward`` (a ``DREMReward``) pays each row of a negatives file ``[N]``."""
     with h5py.File(path, "r") as f:
+        count = len(f["depth"])
+        if not count:  # a round that found none writes no poses: there is nothing to pay
+            return np.zeros(0, np.float32)
         batch = {m: torch.as_tensor(f[f"{m}_rgb"][()]) for m in reward.model.config.cameras}
         if reward.uses_ft:
             batch["ft"] = torch.as_tensor(f["ft"][()]).float()
         if reward.uses_poses:
             batch["poses"] = torch.as_tensor(f["poses"][()]).float()
-    count = len(next(iter(batch.values())))
-    if not count:
-        return np.zeros(0, np.float32)
     return torch.cat([reward({k: v[i:i + batch_size] for k, v in batch.items()})
                       for i in range(0, count, batch_size)]).numpy()
 

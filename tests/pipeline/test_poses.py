@@ -116,3 +116,22 @@ def test_a_recipe_that_samples_no_images_cannot_train_a_camera_model():
     with pytest.raises(RecipeError, match=r"images = false samples no camera images, but the models read \['fixed'\]"):
         load_recipe("PushCube-v1", recipe=recipe)
     assert load_recipe("PushCube-v1", recipe={**recipe, "train": {"model": {"modalities": ["poses"]}}})
+
+
+def test_a_round_that_found_no_negatives_costs_a_poses_reward_nothing(tmp_path):
+    """A policy round whose policy reached no well-paid failure writes an empty negatives file without poses; what a
+    poses reward pays it is empty, and a round that found some is paid one value per row."""
+    from drem_maniskill.drem.checkpoint import load_checkpoint
+    from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.pipeline.policy_rounds import paid_on_negatives, write_negatives
+    from tests.conftest import tiny_checkpoint
+
+    reward = DREMReward(*load_checkpoint(tiny_checkpoint(tmp_path / "r.pt", STOCK, ("poses",), (), poses_size=5)))
+    write_negatives(tmp_path / "none.h5", [], 9, [], False)
+    assert paid_on_negatives(reward, tmp_path / "none.h5").shape == (0,)
+    poses = torch.randn(3, 5, generator=torch.Generator().manual_seed(0))
+    rows = [({"poses": poses[t:t + 1]}, 0.9, 7, t) for t in range(3)]
+    write_negatives(tmp_path / "some.h5", rows, 9, [], False)
+    paid = paid_on_negatives(reward, tmp_path / "some.h5")
+    with torch.no_grad():
+        np.testing.assert_allclose(paid, reward({"poses": poses}).numpy(), rtol=1e-5)
