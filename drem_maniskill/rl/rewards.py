@@ -109,13 +109,24 @@ class RewardSpec:
     about: str
     make: Callable[[str, dict], gym.Env]
     stock_tasks: bool = False  # also on ManiSkill's own tasks (they have no F/T, engineered or dense of ours)
+    stock_reward_mode: Optional[str] = None  # also on ManiSkill's own tasks that have this reward mode
     checkpoint: bool = False  # reads a DREM checkpoint (RLConfig.reward_checkpoint replaces the shipped one)
     image_only: bool = False  # the checkpoint it reads by default is the image-only one (drem_image.pt)
     learner: Optional[Callable] = None  # (env, task, seed, options, state, gym_kwargs) -> LearnedReward
 
     def supports(self, task: str) -> bool:
         """Whether this reward can be used on ``task``."""
-        return is_insertion_task(task) or self.stock_tasks
+        if is_insertion_task(task) or self.stock_tasks:
+            return True
+        return self.stock_reward_mode is not None and self.stock_reward_mode in _reward_modes(task)
+
+
+def _reward_modes(task: str) -> tuple:
+    """The reward modes ManiSkill's registered ``task`` supports (none for an unknown id)."""
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    spec = REGISTERED_ENVS.get(task)
+    return tuple(spec.cls.SUPPORTED_REWARD_MODES) if spec is not None else ()
 
 
 def _drem_spec(about: str, image_only: bool, **kwargs) -> RewardSpec:
@@ -125,8 +136,8 @@ def _drem_spec(about: str, image_only: bool, **kwargs) -> RewardSpec:
 
 REWARDS: dict[str, RewardSpec] = {
     "sparse": RewardSpec("1 on success, else 0", env_reward_mode("sparse"), stock_tasks=True),
-    "dense": RewardSpec("the task's staged dense reward in [0, 1] (ManiSkill style)",
-                        env_reward_mode("normalized_dense")),
+    "dense": RewardSpec("the task's staged dense reward in [0, 1] (ManiSkill style; ManiSkill's own where the task "
+                        "has one)", env_reward_mode("normalized_dense"), stock_reward_mode="normalized_dense"),
     "engineered": RewardSpec("-exp(kappa ||x - x_G||), the paper's Engineered", env_reward_mode("engineered")),
     "drem": _drem_spec("DREM, images + F/T, rewards/<task>/drem.pt (image-only on ManiSkill's tasks)", False,
                        stock_tasks=True),

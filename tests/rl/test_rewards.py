@@ -64,6 +64,26 @@ def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
         make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="engineered"))
 
 
+def test_dense_is_maniskills_own_on_the_stock_tasks_that_define_one():
+    """PlugCharger-v1 has no dense reward of its own; StackCube-v1 has, and ``dense`` pays it normalised."""
+    import torch
+
+    from drem_maniskill.rl.rewards import supported_rewards
+    from drem_maniskill.rl.run_env import make_env
+
+    assert "dense" in supported_rewards("StackCube-v1") and "dense" not in supported_rewards("PlugCharger-v1")
+    env, _ = make_env(RLConfig.preset("state", task="StackCube-v1", reward="dense"), for_eval=True)
+    try:
+        obs, _ = env.reset(seed=0)
+        _, r, _, _, info = env.step(torch.zeros(1, 7))
+        u = env.unwrapped
+        assert u.reward_mode == "normalized_dense"
+        expected = u.compute_normalized_dense_reward(obs=None, action=torch.zeros(1, 7), info=info)
+        assert 0.0 < float(r[0]) < 1.0 and float(r[0]) == pytest.approx(float(expected[0]))
+    finally:
+        env.close()
+
+
 def test_a_run_can_name_its_own_reward_checkpoint(tmp_path):
     """``reward_checkpoint`` (``--reward-checkpoint``) replaces the shipped one, for the DREM rewards only."""
     import torch
