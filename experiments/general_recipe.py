@@ -36,6 +36,10 @@ CAMERA_POSES = {"train": {"model": {"modalities": ["fixed", "poses"]}}}
 SWAP = {"scene_swap": {"negatives": True}}
 # Trees for a model that reads no camera, sampled without rendering.
 NO_IMAGES = {"sampler": {"images": False}}
+# Twenty demo episodes of M = 25 each: the node count and scene-swap count of five trees of M = 100, over four times
+# the placements (a reward read from poses pays held-out placements less than the demo's own).
+TWENTY_SMALL_TREES = {"demo": {"episodes": 20, "trees": 20}, "sampler": {"num_children": 25},
+                      "scene_swap": {"max_pairs": 125}}
 # Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
     "base": (),
@@ -55,6 +59,8 @@ VARIANTS = {
     "five_trees_poses_swap": (FIVE_TREES, POSES, SWAP),
     "five_trees_poses_swap_three_rounds": (FIVE_TREES, POSES, SWAP, THREE_ROUNDS),
     "unrendered_five_trees_poses_swap_three_rounds": (FIVE_TREES, POSES, NO_IMAGES, SWAP, THREE_ROUNDS),
+    "unrendered_twenty_small_trees_poses_swap_three_rounds": (TWENTY_SMALL_TREES, POSES, NO_IMAGES, SWAP,
+                                                              THREE_ROUNDS),
 }
 # A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
 # measure the same trees) and, where it only adds rounds, from that one's reward too.
