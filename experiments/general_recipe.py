@@ -16,6 +16,8 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 BASE = {
     "demo": {"seed": 1000, "episodes": 1},
     "sampler": {"num_children": 100, "expert_step_scale": 0.0, "seed": 0, "workers": 1},
@@ -98,7 +100,28 @@ def summary(task: str, variant: str, work: Path, seconds: float) -> dict:
                 robot_only_over_expert=quality.get("robot_only_over_expert"),
                 objects_only_over_expert=quality.get("objects_only_over_expert"),
                 success_rate=quality["success_rate"], fit=header.get("fit"), rounds=header.get("rounds", []),
-                trees=header.get("trees", []))
+                trees=header.get("trees", []),
+                # What the expert's end is paid on held-out seeds against the demo's own: the placements the
+                # trees saw and those they did not (a gap here is a reward that does not carry to new scenes).
+                expert_end_heldout=float(np.mean([c[-1] for c in quality["expert_curves"]])),
+                expert_end_demo=expert_end_on_demo_seeds(task, work))
+
+
+def expert_end_on_demo_seeds(task: str, work: Path) -> float:
+    """Mean reward at the end of the scripted expert's episodes on the demo's own seeds (``recipe.json``)."""
+    from drem_maniskill.experts.control import ee_control_kwargs
+    from drem_maniskill.experts.policies import get_policy
+    from drem_maniskill.experts.rollout import rollout
+    from drem_maniskill.rl.rewards import REWARDS
+
+    demo = json.loads((work / "recipe.json").read_text())["demo"]
+    env = REWARDS["drem"].make(task, dict(obs_mode="state_dict", drem_checkpoint=str(work / "drem.pt"),
+                                          drem_form="paper", **ee_control_kwargs(task, {})))
+    try:
+        seeds = range(demo["seed"], demo["seed"] + demo["episodes"])
+        return float(np.mean([rollout(env, get_policy("expert", env, seed=s), s).rewards[-1] for s in seeds]))
+    finally:
+        env.close()
 
 
 def reuse_trees(work: Path, source, with_reward: bool) -> None:
