@@ -42,6 +42,8 @@ NO_IMAGES = {"sampler": {"images": False}}
 # the placements (a reward read from poses pays held-out placements less than the demo's own).
 TWENTY_SMALL_TREES = {"demo": {"episodes": 20, "trees": 20}, "sampler": {"num_children": 25},
                       "scene_swap": {"max_pairs": 125}}
+# The actors' pairwise position differences beside their poses: what is placed where relative to what.
+RELATIVE = {"train": {"model": {"poses_relative": True}}}
 # Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
     "base": (),
@@ -63,6 +65,8 @@ VARIANTS = {
     "unrendered_five_trees_poses_swap_three_rounds": (FIVE_TREES, POSES, NO_IMAGES, SWAP, THREE_ROUNDS),
     "unrendered_twenty_small_trees_poses_swap_three_rounds": (TWENTY_SMALL_TREES, POSES, NO_IMAGES, SWAP,
                                                               THREE_ROUNDS),
+    "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (TWENTY_SMALL_TREES, POSES, RELATIVE,
+                                                                       NO_IMAGES, SWAP, THREE_ROUNDS),
 }
 # A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
 # measure the same trees) and, where it only adds rounds, from that one's reward too.
@@ -72,7 +76,9 @@ BUILDS_ON = {"five_trees_three_rounds": ("five_trees", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
              "five_trees_poses_swap": ("five_trees_poses", False),
-             "five_trees_poses_swap_three_rounds": ("five_trees_poses_swap", True)}
+             "five_trees_poses_swap_three_rounds": ("five_trees_poses_swap", True),
+             "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (
+                 "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
 RESULTS = Path("docs/results/general_recipe")
 
 

@@ -50,6 +50,11 @@ class ModelConfig:
     """Values in the scene-poses vector (``poses``); set from the progress tree when the model is trained."""
     poses_dim: int = 64
     """Features of the scene poses after their MLP."""
+    poses_relative: bool = False
+    """Beyond the paper: the pairwise position differences of the scene's actors are inputs too, beside the poses
+    (where one object is relative to another reads the same at every placement)."""
+    poses_actors: int = 0
+    """Actors at the head of the scene-poses vector (``poses_relative``); set from the progress tree's env."""
     latent_dim: int = 128
     """Size of the latent ``h(s)``."""
     channels: tuple = (16, 32, 32, 64, 64, 128)
@@ -222,12 +227,16 @@ class DREMModel(nn.Module):
             if config.poses_size < 1:
                 raise ValueError("a model reading poses needs poses_size (the scene-poses vector's length); "
                                  "train_reward sets it from the progress tree")
+            if config.poses_relative and not 2 <= config.poses_actors <= config.poses_size // 7:
+                raise ValueError(f"poses_relative needs at least two actors in the poses vector, got poses_actors="
+                                 f"{config.poses_actors}; train_reward sets it from the progress tree's env")
+            size = poses_features(torch.zeros(1, config.poses_size), config).shape[1]
             # Standardised with the tree's own statistics (set_poses_stats): positions differ by centimetres,
             # joint angles by radians, and some bodies never move.
-            self.register_buffer("poses_mean", torch.zeros(config.poses_size))
-            self.register_buffer("poses_std", torch.ones(config.poses_size))
-            self.poses_encoder = PosesEncoder(config.poses_size, config.poses_dim)
-            self.poses_decoder = PosesDecoder(config.latent_dim, config.poses_size)
+            self.register_buffer("poses_mean", torch.zeros(size))
+            self.register_buffer("poses_std", torch.ones(size))
+            self.poses_encoder = PosesEncoder(size, config.poses_dim)
+            self.poses_decoder = PosesDecoder(config.latent_dim, size)
             fused += config.poses_dim
         self.fusion = nn.Sequential(nn.Linear(fused, 256), nn.LeakyReLU(0.1), nn.Linear(256, config.latent_dim))
         if config.init == "kaiming":
@@ -250,14 +259,15 @@ class DREMModel(nn.Module):
         if "ft" in self.config.modalities:
             out["ft"] = batch["ft"].float() / self.ft_scale
         if "poses" in self.config.modalities:
-            out["poses"] = (batch["poses"].float() - self.poses_mean) / self.poses_std
+            out["poses"] = (poses_features(batch["poses"].float(), self.config) - self.poses_mean) / self.poses_std
         return out
 
     def set_poses_stats(self, poses: torch.Tensor, floor: float = 0.01) -> None:
         """Standardise scene poses by the mean and spread of ``poses`` ``[N, size]`` (the training set's); a spread
         below ``floor`` counts as ``floor``, so a body that never moved in the tree does not blow up elsewhere."""
-        self.poses_mean.copy_(poses.float().mean(0))
-        self.poses_std.copy_(poses.float().std(0).clamp_min(floor))
+        features = poses_features(poses.float(), self.config)
+        self.poses_mean.copy_(features.mean(0))
+        self.poses_std.copy_(features.std(0).clamp_min(floor))
 
     def encode(self, inputs: dict) -> torch.Tensor:
         """Prepared inputs -> latent ``[B, latent_dim]``."""
@@ -282,6 +292,17 @@ class DREMModel(nn.Module):
         inputs = self.prepare(batch)
         h = self.encode(inputs)
         return h, self.decode(h), inputs
+
+
+def poses_features(poses: torch.Tensor, config: ModelConfig) -> torch.Tensor:
+    """The pose model's input before standardising: the scene poses ``[B, size]`` and, with ``poses_relative``, each
+    pair of the first ``poses_actors`` actors' position differences (``scene_poses`` puts each actor's pose first,
+    7 values: position then quaternion)."""
+    if not config.poses_relative:
+        return poses
+    positions = poses[:, : 7 * config.poses_actors].reshape(len(poses), config.poses_actors, 7)[..., :3]
+    i, j = torch.triu_indices(config.poses_actors, config.poses_actors, offset=1)
+    return torch.cat([poses, (positions[:, i] - positions[:, j]).flatten(1)], dim=1)
 
 
 def kaiming_init(module: nn.Module, slope: float = LEAKY_SLOPE) -> None:

@@ -94,7 +94,8 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     data.add_trees(trees, config.model)
     negative_nodes = data.add_negatives(negatives, config.model)
     if data.poses is not None:  # the scene-poses vector's length is the env's, read from its tree
-        config = replace(config, model=replace(config.model, poses_size=int(data.poses.shape[1])))
+        actors = _actor_count(data.header) if config.model.poses_relative else 0
+        config = replace(config, model=replace(config.model, poses_size=int(data.poses.shape[1]), poses_actors=actors))
     torch.manual_seed(config.seed)
     device = torch.device("cuda" if config.device == "auto" and torch.cuda.is_available() else
                           ("cpu" if config.device == "auto" else config.device))
@@ -165,6 +166,18 @@ def forest_record(first: str, trees: Sequence[str]) -> list:
         with tree_file.open_tree(path) as f:
             record.append(dict(episode_seed=tree_file.read_header(f).get("episode_seed"), nodes=len(f["depth"])))
     return record
+
+
+def _actor_count(header: dict) -> int:
+    """How many actors the tree's env holds (the head of its scene-poses vector), read from a fresh env's state."""
+    import gymnasium as gym
+
+    env = gym.make(header["env_id"], **{**header.get("env_kwargs", {}), "obs_mode": "state_dict"})
+    try:
+        env.reset(seed=0)
+        return len(env.unwrapped.get_state_dict().get("actors", {}))
+    finally:
+        env.close()
 
 
 def _load_weights(model: DREMModel, path: str, config) -> None:

@@ -135,3 +135,43 @@ def test_a_round_that_found_no_negatives_costs_a_poses_reward_nothing(tmp_path):
     paid = paid_on_negatives(reward, tmp_path / "some.h5")
     with torch.no_grad():
         np.testing.assert_allclose(paid, reward({"poses": poses}).numpy(), rtol=1e-5)
+
+
+def test_relative_poses_add_each_actor_pairs_position_difference_which_a_shared_shift_leaves_alone():
+    from drem_maniskill.drem.model import DREMModel, ModelConfig
+
+    config = ModelConfig(modalities=("poses",), poses_size=7 * 3 + 4, poses_relative=True, poses_actors=3)
+    model = DREMModel(config)
+    poses = torch.randn(2, config.poses_size, generator=torch.Generator().manual_seed(0))
+    features = model.prepare({"poses": poses})["poses"]
+    p = poses[:, :21].reshape(2, 3, 7)[..., :3]
+    pairs = torch.cat([p[:, 0] - p[:, 1], p[:, 0] - p[:, 2], p[:, 1] - p[:, 2]], dim=1)
+    assert features.shape == (2, 25 + 9) and model.poses_mean.shape == (34,)
+    torch.testing.assert_close(features[:, 25:], pairs)  # unit statistics until set_poses_stats
+    shifted = poses.clone()
+    shifted[:, [0, 7, 14]] += 0.3  # every actor 30 cm along x
+    torch.testing.assert_close(model.prepare({"poses": shifted})["poses"][:, 25:], pairs)
+    assert not torch.allclose(model.prepare({"poses": shifted})["poses"][:, :25], features[:, :25])
+    with pytest.raises(ValueError, match="poses_relative needs at least two actors"):
+        DREMModel(ModelConfig(modalities=("poses",), poses_size=25, poses_relative=True, poses_actors=1))
+
+
+@pytest.mark.slow
+def test_a_relative_poses_reward_reads_its_actor_count_from_the_trees_env(stock_pipeline, tmp_path):  # noqa: F811
+    from drem_maniskill.drem.model import ModelConfig
+    from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
+
+    model = ModelConfig(image_size=64, modalities=("poses",), poses_relative=True)
+    checkpoint = train_reward(stock_pipeline["tree"], str(tmp_path / "reward"), TrainConfig.preset(
+        "tiny", iterations=4, model=model), progress=False)
+    env = gym.make(STOCK, obs_mode="state", control_mode="pd_ee_delta_pose")
+    try:
+        reward = DREMReward.from_checkpoint(checkpoint, env)
+        env.reset(seed=3)
+        actors = len(env.unwrapped.get_state_dict()["actors"])
+        assert reward.model.config.poses_actors == actors >= 2
+        assert reward.model.poses_mean.shape[0] == reward.model.config.poses_size + 3 * actors * (actors - 1) // 2
+        assert torch.isfinite(reward.reward(env.unwrapped, None)).all()
+    finally:
+        env.close()
