@@ -15,8 +15,10 @@ from drem_maniskill.pipeline.train_reward import TrainConfig
 @pytest.mark.parametrize("task", TASKS)
 def test_the_demo_scale_is_the_quick_presets_at_500_iterations(task):
     recipe = load_recipe(task, "demo")
-    # The paper's loop alone with 24 children per seed, following the expert's step as the shipped trees do.
-    assert recipe.sampler_config().to_dict() == SamplerConfig.preset("quick", expert_step_scale=4.0).to_dict()
+    # The paper's loop alone with 24 children per seed, following the expert's step and held to the depth
+    # limit (80) as the shipped trees are.
+    expected = SamplerConfig.preset("quick", expert_step_scale=4.0, max_depth=80)
+    assert recipe.sampler_config().to_dict() == expected.to_dict()
     quick = asdict(TrainConfig.preset("quick", iterations=500))
     quick["model"]["modalities"] = ("fixed", "wrist", "ft")
     # threads 0: torch's default, every core, as the demo always trained.
