@@ -70,7 +70,8 @@ VARIANTS = {
 }
 # A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
 # measure the same trees) and, where it only adds rounds, from that one's reward too.
-BUILDS_ON = {"five_trees_three_rounds": ("five_trees", True),
+BUILDS_ON = {"three_rounds": ("base", True),
+             "five_trees_three_rounds": ("five_trees", True),
              "five_trees_demo_seeds_three_rounds": ("five_trees_demo_seeds", True),
              "five_trees_128px": ("five_trees", False),
              "five_trees_camera_poses": ("five_trees_poses", False),
