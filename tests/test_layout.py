@@ -24,8 +24,10 @@ MAX_FUNCTION_LINES = 80
 
 # Progress-report numbers, issue numbers and the checkpoint code names. The names are written with
 # brackets so that this file does not match its own pattern.
-HISTORY = r"\b[Ss]tops? [0-9]+|\b[Ii]ssues? [0-9]+|\b(G[T]|G[F]|G[2])\b"
-HISTORY_PATHS = ["drem_maniskill/", "tests/", "scripts/", "tasks/", "rewards/", "docs/", "README.md", "bench/"]
+# A code name may sit inside a JSON key (``last_20_<name>``), so "_" counts as a boundary too.
+HISTORY = r"\b[Ss]tops? [0-9]+|\b[Ii]ssues? [0-9]+|(^|[^A-Za-z0-9])(G[T]|G[F]|G[2])([^A-Za-z0-9]|$)"
+HISTORY_PATHS = ["drem_maniskill/", "tests/", "scripts/", "tasks/", "rewards/", "docs/", "README.md", "bench/",
+                 "experiments/", "CHANGELOG.md", "Makefile", "pyproject.toml", ".ci/"]
 
 
 def _sources() -> list:
