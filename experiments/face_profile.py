@@ -1,7 +1,8 @@
 """How much of a reward's rise is left on the socket's face, by distance from the opening: the measure of the face trap.
 
     .venv/bin/python experiments/face_profile.py --task USBInsertion-v1 \
-        --checkpoint drem=rewards/USBInsertion-v1/drem.pt --checkpoint drem-image=rewards/USBInsertion-v1/drem_image.pt \
+        --checkpoint drem=rewards/USBInsertion-v1/drem.pt \
+        --checkpoint drem-image=rewards/USBInsertion-v1/drem_image.pt \
         --out docs/results/face_profile/USBInsertion-v1.json --plot docs/images/results/face_profile_USBInsertion-v1.png
 
 SAC trained on a reward that pays the part pressed on the face beside the opening nearly what it
@@ -101,7 +102,8 @@ def main() -> None:
                                   to_go=float((r_ins[n] - np.mean(vals)) / (r_ins[n] - r_start[n])))
                 positions.append(row)
                 print(f"{height:>10} {axis} {mm:>2} mm  tip {row['tip_mm']}  "
-                      + "  ".join(f"{n} {row[n]['mean']:.3f} (to go {row[n]['to_go']:.2f})" for n in rewards), flush=True)
+                      + "  ".join(f"{n} {row[n]['mean']:.3f} (to go {row[n]['to_go']:.2f})" for n in rewards),
+                      flush=True)
 
     pressed = [r for r in positions if r["height"] == "pressed"]
     lead = {n: face_lead(pressed, n, r_start[n], r_ins[n]) for n in rewards}
@@ -129,7 +131,8 @@ def _plot(result: dict, rewards: list, path: str) -> None:
     for ax, height in zip(axes, HEIGHTS):
         for n in rewards:
             for axis, style in (("x", "-o"), ("y", "--s")):
-                rows = [r for r in result["positions"] if r["height"] == height and (r["axis"] == axis or r["offset_mm"] == 0)]
+                rows = [r for r in result["positions"]
+                        if r["height"] == height and (r["axis"] == axis or r["offset_mm"] == 0)]
                 ax.plot([float(np.hypot(*r["tip_mm"][:2])) for r in rows], [r[n]["to_go"] for r in rows], style, ms=3,
                         label=f"{n} ({axis})", color=f"C{rewards.index(n)}")
         ax.axhline(0, color="k", lw=0.5)

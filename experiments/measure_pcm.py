@@ -82,7 +82,8 @@ def measure(task: str, seeds, policies=("align_success", "search_fail")) -> dict
     def summary(diffs):
         d = np.asarray(diffs)
         pos, force = np.linalg.norm(d[:, :3], axis=1), np.linalg.norm(d[:, 3:], axis=1)
-        return dict(steps=len(d), tip_error_mm_median=float(np.median(pos)), tip_error_mm_p90=float(np.quantile(pos, 0.9)),
+        return dict(steps=len(d), tip_error_mm_median=float(np.median(pos)),
+                    tip_error_mm_p90=float(np.quantile(pos, 0.9)),
                     force_error_n_median=float(np.median(force)), force_error_n_p90=float(np.quantile(force, 0.9)))
 
     return {k: summary(v) for k, v in rows.items() if v}

@@ -1,9 +1,9 @@
 """Scene-swap negatives on a built forest: do they make the reward read the task's objects rather than the robot?
 
 Takes a general-recipe build (``experiments/general_recipe.py``, e.g. ``five_trees``), writes the scene-swap
-negatives of each demo episode (``pipeline.scene_swap.swap_negatives``), trains the same recipe's model on the same trees with
-them for each ``--iterations``, examines it, and measures what it pays its own negatives (all of them, and those with
-the robot at the goal). Every stage is skipped when its output exists. The summary goes to
+negatives of each demo episode (``pipeline.scene_swap.swap_negatives``), trains the same recipe's model on the same
+trees with them for each ``--iterations``, examines it, and measures what it pays its own negatives (all of them, and
+those with the robot at the goal). Every stage is skipped when its output exists. The summary goes to
 ``docs/results/general_recipe/<task>/<variant>_scene_swap.json``.
 
     .venv/bin/python experiments/swap_negatives.py --task PushCube-v1 --variant five_trees --iterations 2000 6000
