@@ -147,6 +147,14 @@ def reuse_trees(work: Path, source, with_reward: bool) -> None:
         shutil.copyfile(tree, work / tree.name)
 
 
+def add_build_time(work: Path, seconds: float) -> float:
+    """Seconds spent building ``work`` over every invocation, so a resumed build reports what it did before too."""
+    path = work / "build_seconds.json"
+    total = seconds + (json.loads(path.read_text())["seconds"] if path.is_file() else 0.0)
+    path.write_text(json.dumps({"seconds": total}) + "\n")
+    return total
+
+
 def main() -> None:
     """Build every task x variant and write its summary."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -163,7 +171,7 @@ def main() -> None:
             reuse_trees(work, Path(args.out) / task / source if source else None, with_reward)
             start = time.time()
             build_reward(task, scale="full", out=work, recipe=recipe(variant))
-            result = summary(task, variant, work, time.time() - start)
+            result = summary(task, variant, work, add_build_time(work, time.time() - start))
             dest = RESULTS / task / f"{variant}.json"
             dest.parent.mkdir(parents=True, exist_ok=True)
             dest.write_text(json.dumps(result, indent=1) + "\n")
