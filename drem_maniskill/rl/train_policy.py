@@ -12,16 +12,19 @@ The run loop names no reward and no algorithm: both come from their tables by th
     sb3/from<N>/progress.csv SB3's csv log of the segment that started at step N
     checkpoints/latest.json  {"step": N, "dir": "step_N"}, replaced atomically after a checkpoint is complete
     checkpoints/step_N/      model.zip, replay_buffer.pkl, <reward>.pt (a learned reward: vice.pt), progress.json
+    .lock                    held while a process trains the run (its pid inside); a second one waits, then fails
 """
 
 from __future__ import annotations
 
 import csv
+import fcntl
 import hashlib
 import json
 import os
 import shutil
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -261,8 +264,48 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
     reward_spec(config.reward)  # unknown names fail before anything is built
     algo = algo_spec(config.algo)
     torch.set_num_threads(int(config.threads))
+    config.run_dir.mkdir(parents=True, exist_ok=True)
+    with run_lock(config.run_dir):
+        return _train_locked(config, algo, callbacks)
+
+
+# A killed sweep's Ray workers can outlive it by seconds; a rerun waits this long for them before it fails.
+LOCK_WAIT_S = 120.0
+
+
+@contextmanager
+def run_lock(run_dir, wait_s: Optional[float] = None):
+    """Hold ``run_dir/.lock`` for one training process; another waits up to ``wait_s`` (LOCK_WAIT_S), then fails."""
+    wait_s = LOCK_WAIT_S if wait_s is None else wait_s
+    path = Path(run_dir) / ".lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        deadline, told = time.monotonic() + wait_s, False
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                holder = path.read_text().strip() or "unknown"
+                if time.monotonic() >= deadline:
+                    raise RuntimeError(
+                        f"{run_dir} is being trained by another process (pid {holder}); stop that process or let "
+                        f"it finish, then rerun: this run resumes from its last checkpoint") from None
+                if not told:
+                    print(f"[train-policy] {run_dir} is being trained by pid {holder}; waiting up to {wait_s:.0f} s",
+                          flush=True)
+                    told = True
+                time.sleep(0.25)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing the descriptor releases the lock, also when the process is killed
+
+
+def _train_locked(config: RLConfig, algo, callbacks: Sequence[BaseCallback]) -> dict:
+    """``train_policy``'s body, run while the run folder's lock is held."""
     run_dir = config.run_dir
-    run_dir.mkdir(parents=True, exist_ok=True)
     ckpt = latest_checkpoint(run_dir)
     check_resumable(config)
     config.save(run_dir / "config.json")

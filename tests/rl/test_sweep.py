@@ -170,6 +170,14 @@ def _sweep(out: Path) -> list:
             "drem", "--seeds", "0", "--preset", "light", "--out", str(out), *TINY]
 
 
+def _wait_until_no_one_trains(run: Path, wait_s: float = 120) -> None:
+    from drem_maniskill.rl.train_policy import run_lock
+
+    if run.exists():
+        with run_lock(run, wait_s=wait_s):
+            pass
+
+
 def _step(run: Path) -> int:
     latest = run / "checkpoints" / "latest.json"
     return json.loads(latest.read_text())["step"] if latest.exists() else 0
@@ -187,6 +195,8 @@ def test_a_sweep_on_local_ray_killed_and_rerun_finishes_every_run(tmp_path):
             time.sleep(0.5)
         os.killpg(proc.pid, signal.SIGKILL)  # the sweep, Ray's processes and the trials
         proc.wait()
+    for run in runs.values():  # a Ray worker can outlive the sweep by seconds and write on; wait until it ends
+        _wait_until_no_one_trains(run)
     at_kill = {reward: _step(run) for reward, run in runs.items()}
     assert any(at_kill.values()), (tmp_path / "first.log").read_text()[-3000:]
 

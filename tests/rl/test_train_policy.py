@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import signal
+import subprocess
+import sys
 
 import pytest
 
@@ -35,6 +39,29 @@ def test_train_policy_tiny_writes_eval_csv_and_checkpoint(tmp_path):
     assert RLConfig.load(run / "config.json") == _tiny(tmp_path)
     assert list((run / "tb").glob("events.out.tfevents.*"))
     assert result["steps"] == 64 and result["resumed_from"] == 0
+
+
+def test_a_run_another_process_is_training_waits_for_it_then_fails_without_touching_the_run(tmp_path, monkeypatch):
+    """A rerun while the killed sweep's trial still writes the folder must not write beside it."""
+    from drem_maniskill.rl import train_policy as tp
+
+    config = _tiny(tmp_path)
+    config.run_dir.mkdir(parents=True)
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import time; from drem_maniskill.rl.train_policy import run_lock\n"
+        f"with run_lock({str(config.run_dir)!r}):\n    print('held', flush=True); time.sleep(60)")],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        monkeypatch.setattr(tp, "LOCK_WAIT_S", 0.5)
+        with pytest.raises(RuntimeError, match=rf"being trained by another process \(pid {holder.pid}\); stop"):
+            tp.train_policy(config)
+        assert sorted(p.name for p in config.run_dir.iterdir()) == [".lock"]  # no config.json, no eval.csv
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    with tp.run_lock(config.run_dir, wait_s=0):  # a killed holder leaves no lock behind
+        assert (config.run_dir / ".lock").read_text() == str(os.getpid())
 
 
 @pytest.mark.slow
