@@ -130,12 +130,25 @@ def trained_policy_sampled(run: RLConfig, seed: int = 0):
     return act
 
 
-def _episode_report(ep, objects: dict, expert_objects: Optional[dict]) -> dict:
+def task_measures(env) -> dict:
+    """The task's own ``evaluate()`` numbers at this state, first env of the batch: every per-env scalar
+    (an insertion's depth, radial offset and angle errors; a cube's distance to its goal), so a report says
+    how a failure falls short in the task's terms."""
+    out = {}
+    for key, value in env.unwrapped.evaluate().items():
+        if isinstance(value, torch.Tensor) and value.ndim == 1 and key != "success":
+            out[key] = round(float(value[0]), 4)
+    return out
+
+
+def _episode_report(ep, objects: dict, expert_objects: Optional[dict], measures: Optional[dict] = None) -> dict:
     """One policy episode: success, R per step, R at its end, and (failed) where its objects are."""
     rewards = np.asarray(ep.rewards, dtype=float)
     row = dict(seed=ep.seed, success=bool(ep.success), mean_reward=float(rewards.mean()),
                end_reward=float(rewards[-LAST_STEPS:].mean()))
     if not ep.success:
+        if measures:
+            row["task_measures"] = measures
         if expert_objects is not None:
             row["distance_from_expert_end"] = {k: round(float(np.linalg.norm(v - expert_objects[k])), 4)
                                                for k, v in objects.items() if k in expert_objects}
@@ -246,7 +259,8 @@ def check_reward(config: CheckConfig) -> dict:
     try:
         for seed in seeds:
             ep = rollout(env, act, seed, max_episode_steps(task), stop_on_success=False)
-            rows.append(_episode_report(ep, moving_objects(env), expert[seed]["objects"] if expert else None))
+            rows.append(_episode_report(ep, moving_objects(env), expert[seed]["objects"] if expert else None,
+                                        task_measures(env)))
     finally:
         env.close()
     curve = run_curve(run)
@@ -311,6 +325,9 @@ def summary_lines(report: dict) -> list:
             lines.append(f"    seed {row['seed']}: ends at R {row['end_reward']:.3f}; "
                          + ", ".join(f"{k} {v} m from the expert's end" if "distance_from_expert_end" in row
                                      else f"{k} at {v}" for k, v in where.items()))
+            if row.get("task_measures"):
+                lines.append("      the task's evaluate(): "
+                             + ", ".join(f"{k} {v:g}" for k, v in row["task_measures"].items()))
     if v["paid_evaluations"]:
         lines.append(f"  paid without success at steps {v['paid_evaluations']}")
     lines.append("  EXPLOIT: the reward pays failures like success" if v["exploit"]

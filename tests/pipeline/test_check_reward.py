@@ -97,6 +97,13 @@ def test_a_reward_that_teaches_reports_no_exploit(tmp_path, capsys):
     assert not v["exploit"] and "no exploit found" in out, out
     assert v["expert_success_rate"] == 1 and v["paid_failures"] == 0
     assert "part tip" in out and "m from the expert's end" in out  # the held peg: where its tip is in the socket
+    report = json.loads((tmp_path / "report.json").read_text())
+    failed = [e for e in report["episodes"] if not e["success"]]
+    assert failed and all({"insertion_depth", "radial_offset", "tilt_error", "yaw_error"} <= set(e["task_measures"])
+                          for e in failed)
+    # Read at the episode's end, they agree it failed: short of 0.8 x the 40 mm bore, or not aligned.
+    assert all(e["task_measures"]["insertion_depth"] < 0.032 or not e["task_measures"]["is_aligned"] for e in failed)
+    assert "the task's evaluate(): " in out and "insertion_depth" in out
 
     # The same run examined again as a finished run: nothing trained, the same policy on the same seeds.
     first = json.loads((tmp_path / "report.json").read_text())
