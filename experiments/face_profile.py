@@ -14,7 +14,7 @@ directions, on held-out seeds with the task's colours and placements, and reads 
 checkpoint and the task's ``engineered`` reward there. Each value is also given as the fraction of
 the reward's rise from the episode's start to a finished insertion that is still to go:
 ``(r_inserted - r) / (r_inserted - r_start)``, 0 at the goal and 1 at the start, comparable
-across rewards of any sign and scale. The summary per reward (``pipeline.examine.face_lead``): the
+across rewards of any sign and scale. The summary per reward (``evaluate.measures.face_lead``): the
 fraction still to go on the face near the opening, and the *lead*, the reward's rise per millimetre
 towards the opening in units of its spread across episodes.
 """
@@ -47,9 +47,10 @@ def main() -> None:
 
     import drem_maniskill  # noqa: F401  (registers the tasks)
     from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.evaluate.measures import FACE_LEAD_RANGE_MM, face_lead
+    from drem_maniskill.evaluate.probes import HOLD_STEPS
     from drem_maniskill.experts import get_policy, rollout
     from drem_maniskill.experts.scripted import PRESS_DEPTH, HoldPolicy
-    from drem_maniskill.pipeline.examine import FACE_LEAD_RANGE_MM, HOLD_STEPS, face_lead
     from drem_maniskill.utils.cameras import camera_images
 
     torch.set_num_threads(1)

@@ -18,8 +18,8 @@ from pathlib import Path
 
 def measure(task: str, checkpoint: str, seeds) -> dict:
     """The scene-swap ratios of ``checkpoint`` on ``task`` over the expert's successful episodes on ``seeds``."""
-    from drem_maniskill.pipeline.examine import _make_env, examination_episode
-    from drem_maniskill.pipeline.scene_swap import scene_swap, swap_ratios
+    from drem_maniskill.evaluate.examine import _make_env, examination_episode
+    from drem_maniskill.evaluate.scene_swap import scene_swap, swap_ratios
     from drem_maniskill.utils.progress import progress_bar
 
     env = _make_env(task, checkpoint, None)

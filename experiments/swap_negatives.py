@@ -24,7 +24,7 @@ def paid_on(checkpoint: str, files) -> dict:
     import h5py
 
     from drem_maniskill.drem.reward import DREMReward
-    from drem_maniskill.pipeline.policy_rounds import paid_on_negatives
+    from drem_maniskill.pipeline.negatives import paid_on_negatives
 
     reward = DREMReward.from_checkpoint(checkpoint)
     paid, robot_depth = [], []
@@ -48,8 +48,8 @@ def main() -> None:
     args = p.parse_args()
     from general_recipe import RESULTS, recipe
 
+    from drem_maniskill.evaluate.examine import examine
     from drem_maniskill.pipeline.dataset import dataset_modalities
-    from drem_maniskill.pipeline.examine import examine
     from drem_maniskill.pipeline.recipe import load_recipe
     from drem_maniskill.pipeline.scene_swap import swap_negatives
     from drem_maniskill.pipeline.train_reward import train_reward

@@ -23,9 +23,10 @@ LAYERS = {
     "envs": 2,
     "experts": 3,
     "rl": 4,
-    "pipeline": 5,  # policy rounds and check-reward train SAC on the reward being built
-    "demo": 6, "launcher": 6,
-    "cli": 7, "__init__": 7,
+    "evaluate": 5,  # judging a reward: check-reward trains SAC on it
+    "pipeline": 6,  # building a reward: a build examines it, policy rounds train SAC on it
+    "demo": 7, "launcher": 7,
+    "cli": 8, "__init__": 8,
 }
 
 
@@ -126,16 +127,47 @@ def test_the_checks_catch_what_they_are_for():
     graph = {k: set(v) for k, v in package_imports().items()}
     graph["drem_maniskill.utils.cameras"].add("drem_maniskill.envs.adapter")  # up, and a cycle through adapter
     graph["drem_maniskill.drem.reward"].add("drem_maniskill.baselines.vice")  # sideways
-    graph["drem_maniskill.rl.train_policy"].add("drem_maniskill.pipeline.examine")  # up: rl is below the pipeline
+    graph["drem_maniskill.rl.train_policy"].add("drem_maniskill.evaluate.examine")  # up: rl is below judging
     wrong = upward_imports(graph)
     for planted in ("drem_maniskill.utils.cameras (layer 0) imports drem_maniskill.envs.adapter",
                     "drem_maniskill.drem.reward (layer 1) imports drem_maniskill.baselines.vice",
-                    "drem_maniskill.rl.train_policy (layer 4) imports drem_maniskill.pipeline.examine"):
+                    "drem_maniskill.rl.train_policy (layer 4) imports drem_maniskill.evaluate.examine"):
         assert any(w.startswith(planted) for w in wrong), planted
     cycle = find_cycle(graph)
     assert cycle is not None and "drem_maniskill.utils.cameras" in cycle
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def judging_imports_of_building(graph: dict) -> list:
+    """The imports of ``graph`` from a module of ``drem_maniskill.evaluate`` into ``drem_maniskill.pipeline``."""
+    return sorted(f"{module} imports {target}" for module, targets in graph.items() for target in targets
+                  if part_of(module) == "evaluate" and part_of(target) == "pipeline")
+
+
+def test_judging_never_imports_building():
+    """A reward is judged by what it pays, whatever built it: ``evaluate`` reads checkpoints, never the builder's code
+    (function-local imports count)."""
+    graph = package_imports()
+    wrong = judging_imports_of_building(graph)
+    assert not wrong, "evaluate imports pipeline (move the piece it needs below both):\n" + "\n".join(wrong)
+    graph["drem_maniskill.evaluate.examine"].add("drem_maniskill.pipeline.tree.tree_file")
+    assert judging_imports_of_building(graph) == [
+        "drem_maniskill.evaluate.examine imports drem_maniskill.pipeline.tree.tree_file"]
+
+
+def building_imports_of_rl(graph: dict) -> list:
+    """The modules of ``drem_maniskill.pipeline`` in ``graph`` that import ``drem_maniskill.rl``."""
+    return sorted(module for module, targets in graph.items()
+                  if part_of(module) == "pipeline" and any(part_of(t) == "rl" for t in targets))
+
+
+def test_building_reaches_sac_in_one_place():
+    """Of building, only the policy rounds train and run SAC; the rest of a build reaches it through them."""
+    graph = package_imports()
+    assert building_imports_of_rl(graph) == ["drem_maniskill.pipeline.policy_rounds"]
+    graph["drem_maniskill.pipeline.dataset"].add("drem_maniskill.rl.config")
+    assert building_imports_of_rl(graph) == ["drem_maniskill.pipeline.dataset", "drem_maniskill.pipeline.policy_rounds"]
 
 
 @pytest.mark.parametrize("call", ["update_render(update_sensors=True"])

@@ -1,7 +1,7 @@
 """The one rollout loop, and what is built on it: success rates and VICE-RAQ's goal examples.
 
 ``rollout(env, policy, seed)`` runs one episode and returns an ``Episode``. Recording expert
-demos (``experts.recording``), the reward examination (``pipeline.examine``), the SAC
+demos (``experts.recording``), the reward examination (``evaluate.examine``), the SAC
 evaluation (``rl.train_policy``) and the tests all run their episodes through it; what they
 measure along the way goes in through ``measure``.
 """

@@ -5,7 +5,8 @@
 * ``dataset.TreeDataset``: that tree as training data;
 * ``train_reward.train_reward``: the encoder-decoder with the triplet and reconstruction losses
   (``losses``), exported as a reward checkpoint (``drem_maniskill.drem.checkpoint``);
-* ``examine.examine``: the checkpoint's quality measures and the paper's Fig. 4 plot.
+* the examination of the checkpoint (its quality measures and the paper's Fig. 4 plot) is
+  ``drem_maniskill.evaluate.examine.examine``.
 """
 
 from drem_maniskill.pipeline.tree.backward import backward_sample

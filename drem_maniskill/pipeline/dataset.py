@@ -11,6 +11,7 @@ import torch
 import torch.nn.functional as F
 
 from drem_maniskill.drem.model import CAMERA_OF, ModelConfig
+from drem_maniskill.pipeline.negatives import open_negatives
 from drem_maniskill.pipeline.tree import tree_file
 from drem_maniskill.pipeline.tree.config import SamplerConfig
 
@@ -35,7 +36,7 @@ class TreeDataset:
     def __init__(self, path: str, config: ModelConfig):
         with tree_file.open_tree(path) as f:
             self.header = tree_file.read_header(f)
-            try:  # the nested form, whichever form the tree recorded
+            try:  # every field, the ones the tree's header leaves out at their defaults
                 self.header["config"] = SamplerConfig.from_dict(self.header.get("config", {})).to_dict()
             except (ValueError, TypeError) as err:
                 raise ValueError(f"{path} records a sampler config this version cannot read ({err}); "
@@ -124,14 +125,11 @@ class TreeDataset:
         return len(depth)
 
     def add_negatives(self, paths, config: ModelConfig) -> int:
-        """Append the hard negatives of ``paths`` (``pipeline.policy_rounds``' files) as nodes at their labelled
-        depths; returns how many. Their cameras must be the tree's."""
+        """Append the negatives files ``paths`` (``pipeline.negatives``) as nodes at their labelled depths; returns how
+        many. Their cameras must be the tree's."""
         added = 0
         for path in paths:
-            with h5py.File(path, "r") as f:
-                missing = [c for c in self.images if f"{c}_rgb" not in f]
-                if missing:
-                    raise ValueError(f"{path} has no {missing} images; it was collected for another model")
+            with open_negatives(path, list(self.images)) as f:
                 added += self._append(f, config)
         self._index_depths()
         return added

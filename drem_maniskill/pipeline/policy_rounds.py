@@ -12,24 +12,25 @@ anyone naming the states:
    (``2 eps + 1`` by default: beyond the goal's neighbours and theirs), and the model is fine-tuned from the
    current weights for ``iterations`` on the tree and every round's negatives.
 
-Every round lives in ``<out>/round_<k>/`` (``sac/``, ``negatives.h5``, ``train/drem.pt``) and a finished stage
-is never redone: a killed round, rerun, goes on from its last finished stage (the SAC run and the training
-from their own checkpoints). The checkpoint's header lists the rounds (``rounds``), the model card too.
+Every round lives in ``<out>/round_<k>/`` (``sac/``, ``negatives.h5``: a ``pipeline.negatives`` file,
+``train/drem.pt``) and a finished stage is never redone: a killed round, rerun, goes on from its last finished
+stage (the SAC run and the training from their own checkpoints). The checkpoint's header lists the rounds
+(``rounds``), the model card too.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
 
-import h5py
 import numpy as np
 import torch
 
+from drem_maniskill.pipeline.negatives import paid_on_negatives, write_negatives
+from drem_maniskill.utils.atomic import write_json
 from drem_maniskill.utils.episodes import max_episode_steps
 from drem_maniskill.utils.progress import progress_bar
 
@@ -64,9 +65,9 @@ def round_policy_config(task: str, checkpoint, config: RoundsConfig, k: int, rou
     """The SAC run of round ``k``: the state preset on the drem reward paid by ``checkpoint``."""
     from drem_maniskill.rl.config import RLConfig
 
-    return RLConfig.preset("state", task=task, reward="drem", seed=config.seed + k - 1, steps=config.sac_steps,
-                           learning_starts=config.learning_starts, eval_every=config.sac_steps, eval_episodes=3,
-                           reward_checkpoint=str(checkpoint), out=str(round_dir / "sac"))
+    return RLConfig.from_preset("state", task=task, reward="drem", seed=config.seed + k - 1, steps=config.sac_steps,
+                                learning_starts=config.learning_starts, eval_every=config.sac_steps, eval_episodes=3,
+                                reward_checkpoint=str(checkpoint), out=str(round_dir / "sac"))
 
 
 @torch.no_grad()
@@ -89,12 +90,12 @@ def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k
     """Run round ``k``'s policy (sampled actions) and keep the failed episodes' states paid ``>= threshold``."""
     from drem_maniskill.drem.reward import DREMReward
     from drem_maniskill.experts import rollout
-    from drem_maniskill.pipeline.check_reward import trained_policy_sampled
     from drem_maniskill.rl.run_env import make_eval_env
+    from drem_maniskill.rl.run_policy import load_policy
 
     env = make_eval_env(dataclasses.replace(run, drem_form="paper"))
     reward = DREMReward.from_checkpoint(str(checkpoint), env)
-    act = trained_policy_sampled(run, seed=config.seed + k - 1)
+    act = load_policy(run.run_dir).act(deterministic=False, seed=config.seed + k - 1)
     kept, stats = [], dict(episodes=0, failed=0, candidates=0)
     try:
         for i in progress_bar(range(config.episodes), desc=f"round {k}: policy episodes"):
@@ -122,26 +123,6 @@ def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k
     return dict(stats=stats, rows=kept)
 
 
-def write_negatives(path: Path, rows: list, depth, cameras, has_ft: bool) -> None:
-    """The hard negatives as HDF5 (``<camera>_rgb``, ``ft``, ``poses`` where the rows hold them, ``depth``, ``reward``,
-    ``seed``, ``step``), atomically;
-    ``depth``: one label for every row, or one per row."""
-    tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
-        for c in cameras:
-            f.create_dataset(f"{c}_rgb", data=np.concatenate([x[c].numpy() for x, *_ in rows])
-                             if rows else np.zeros((0, 1, 1, 3), np.uint8), compression="gzip")
-        ft = [x["ft"].numpy() for x, *_ in rows] if has_ft else []
-        f.create_dataset("ft", data=np.concatenate(ft) if ft else np.zeros((len(rows), 8, 6), np.float32))
-        if rows and "poses" in rows[0][0]:
-            f.create_dataset("poses", data=np.concatenate([x["poses"].numpy() for x, *_ in rows]))
-        f.create_dataset("depth", data=np.broadcast_to(np.asarray(depth, np.int64), (len(rows),)))
-        f.create_dataset("reward", data=np.array([r for _, r, _, _ in rows], np.float32))
-        f.create_dataset("seed", data=np.array([s for _, _, s, _ in rows], np.int64))
-        f.create_dataset("step", data=np.array([t for _, _, _, t in rows], np.int64))
-    os.replace(tmp, path)
-
-
 def run_round(task: str, tree: str, checkpoint: Path, train_config, config: RoundsConfig, k: int, out: Path,
               negatives: list, trees: Sequence[str] = ()) -> tuple:
     """Round ``k`` from ``checkpoint``; returns ``(its checkpoint, its record)``, each stage resumed where it was."""
@@ -163,9 +144,7 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
         last = result["last_eval"] or {}
         record = dict(round=k, sac_steps=run.steps, sac_success=last.get("success_rate"), negative_depth=depth,
                       threshold=round(threshold, 4), **found["stats"])
-        tmp = record_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(record, indent=2) + "\n")
-        os.replace(tmp, record_path)
+        write_json(record_path, record)
     record = json.loads(record_path.read_text())
     negatives = [*negatives, str(round_dir / "negatives.h5")]
     path = round_dir / "train" / "drem.pt"
@@ -177,22 +156,6 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
                      extra_header=dict(rounds=[*header.get("rounds", []), record]), trees=trees)
         _record_after(path, round_dir / "negatives.h5")
     return path, negatives
-
-
-@torch.no_grad()
-def paid_on_negatives(reward, path, batch_size: int = 128) -> np.ndarray:
-    """What ``reward`` (a ``DREMReward``) pays each row of a negatives file ``[N]``."""
-    with h5py.File(path, "r") as f:
-        count = len(f["depth"])
-        if not count:  # a round that found none writes no poses: there is nothing to pay
-            return np.zeros(0, np.float32)
-        batch = {m: torch.as_tensor(f[f"{m}_rgb"][()]) for m in reward.model.config.cameras}
-        if reward.uses_ft:
-            batch["ft"] = torch.as_tensor(f["ft"][()]).float()
-        if reward.uses_poses:
-            batch["poses"] = torch.as_tensor(f["poses"][()]).float()
-    return torch.cat([reward({k: v[i:i + batch_size] for k, v in batch.items()})
-                      for i in range(0, count, batch_size)]).numpy()
 
 
 @torch.no_grad()

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drem_maniskill.pipeline.examine import _make_env, examination_episode
+from drem_maniskill.evaluate.examine import _make_env, examination_episode
 
 REWARDS = Path(__file__).resolve().parents[2] / "rewards"
 SHIPPED = [("PegInHole-v1", "drem.pt", "quality.json"), ("PegInHole-v1", "drem_image.pt", "quality_image.json"),

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from drem_maniskill.cli import main
-from drem_maniskill.pipeline.check_reward import CheckConfig, judge, markdown_table
+from drem_maniskill.evaluate.check_reward import CheckConfig, judge, markdown_table
 
 EXPERT = {0: dict(success=True, end_reward=1.0), 1: dict(success=True, end_reward=0.9)}  # ends at 0.95 on average
 
@@ -62,12 +62,13 @@ def test_the_model_card_table_reads_the_report():
 
 
 def test_a_folder_that_is_not_a_finished_run_is_refused(tmp_path):
-    from drem_maniskill.pipeline.check_reward import check_reward
+    from drem_maniskill.evaluate.check_reward import check_reward
     from drem_maniskill.rl.config import RLConfig
 
     with pytest.raises(FileNotFoundError, match="is not a train-policy run"):
         check_reward(CheckConfig(run=str(tmp_path)))
-    RLConfig.preset("image", task="PegInHole-v1", reward="sparse", out=str(tmp_path)).save(tmp_path / "config.json")
+    config = RLConfig.from_preset("image", task="PegInHole-v1", reward="sparse", out=str(tmp_path))
+    config.save(tmp_path / "config.json")
     with pytest.raises(FileNotFoundError, match="holds no policy checkpoint"):
         check_reward(CheckConfig(run=str(tmp_path)))
 

@@ -24,8 +24,6 @@ comparison's run whose return is high and success low), under that run's own rew
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
@@ -36,8 +34,11 @@ import torch
 from drem_maniskill.envs import check_env_id
 from drem_maniskill.experts import get_policy, rollout
 from drem_maniskill.rl.config import RLConfig
+from drem_maniskill.utils.atomic import write_json
 from drem_maniskill.utils.episodes import max_episode_steps
 
+# The trainer and stable-baselines3 load inside the functions that run a check: the CLI imports CheckConfig to build
+# its parser.
 LAST_STEPS = 10  # a failure "ends" over this many steps: a policy that stays there, not one passing by
 
 
@@ -83,10 +84,11 @@ class CheckConfig:
 
 def policy_config(config: CheckConfig, checkpoint: Path, out: Path) -> RLConfig:
     """The SAC run of a check: the state preset on the drem reward paid by ``checkpoint``."""
-    return RLConfig.preset("state", task=config.task, reward="drem", seed=config.seed, steps=config.steps,
-                           learning_starts=config.learning_starts, eval_every=min(config.eval_every, config.steps),
-                           reward_checkpoint=str(checkpoint), out=str(out / "sac"),
-                           eval_episodes=config.eval_episodes)
+    return RLConfig.from_preset("state", task=config.task, reward="drem", seed=config.seed, steps=config.steps,
+                                learning_starts=config.learning_starts,
+                                eval_every=min(config.eval_every, config.steps),
+                                reward_checkpoint=str(checkpoint), out=str(out / "sac"),
+                                eval_episodes=config.eval_episodes)
 
 
 def moving_objects(env) -> dict:
@@ -99,35 +101,6 @@ def moving_objects(env) -> dict:
         out["part tip"] = u.tip_pose_in_socket().p[0].cpu().numpy()
     out["tcp"] = u.agent.tcp.pose.p[0].cpu().numpy()
     return out
-
-
-def trained_policy(run: RLConfig):
-    """The deterministic policy of a finished SAC run (its last checkpoint)."""
-    from drem_maniskill.rl.algos import algo_spec
-    from drem_maniskill.rl.train_policy import deterministic_policy, latest_checkpoint
-
-    ckpt = latest_checkpoint(run.run_dir)
-    if ckpt is None:
-        raise FileNotFoundError(f"{run.run_dir} holds no SAC checkpoint; run the check again to train it")
-    return deterministic_policy(algo_spec(run.algo).load(ckpt, None, "cpu"))
-
-
-def trained_policy_sampled(run: RLConfig, seed: int = 0):
-    """The policy of a finished SAC run, sampling its actions (seeded): it visits more than its mean action."""
-    from drem_maniskill.rl.algos import algo_spec
-    from drem_maniskill.rl.train_policy import latest_checkpoint
-
-    ckpt = latest_checkpoint(run.run_dir)
-    if ckpt is None:
-        raise FileNotFoundError(f"{run.run_dir} holds no SAC checkpoint; rerun to train it")
-    model = algo_spec(run.algo).load(ckpt, None, "cpu")
-    torch.manual_seed(seed)  # SB3 samples with torch's global generator
-
-    def act(obs):
-        action, _ = model.predict({k: v.cpu().numpy() for k, v in obs.items()}, deterministic=False)
-        return torch.as_tensor(action, dtype=torch.float32)
-
-    return act
 
 
 def task_measures(env) -> dict:
@@ -178,20 +151,27 @@ def expert_ends(run: RLConfig, seeds: Sequence[int]) -> Optional[dict]:
 
 
 def given_run(config: CheckConfig) -> tuple:
-    """``(run config, its DREM checkpoint or None, the report's folder)`` of ``config.run``, a finished run."""
+    """``(its policy, its DREM checkpoint or None, the report's folder)`` of ``config.run``, a finished run."""
     from drem_maniskill.rl.rewards import reward_checkpoint
-    from drem_maniskill.rl.train_policy import latest_checkpoint
+    from drem_maniskill.rl.run_policy import load_policy
 
-    folder = Path(config.run)
-    if not (folder / "config.json").is_file():
-        raise FileNotFoundError(f"{folder} is not a train-policy run (no config.json); pass a run folder such as "
-                                f"outputs/rl_image/PegInHole-v1/drem/seed0")
-    run = dataclasses.replace(RLConfig.load(folder / "config.json"), out=str(folder))
-    if latest_checkpoint(run.run_dir) is None:
-        raise FileNotFoundError(f"{folder} holds no policy checkpoint (a run kept without its checkpoints); "
-                                f"rerun it with train-policy to examine its policy")
-    out = Path(config.out) if config.out else folder / "check"
-    return run, reward_checkpoint(run.reward, run.task, run.reward_checkpoint), out
+    policy = load_policy(config.run)
+    run = policy.config
+    out = Path(config.out) if config.out else Path(config.run) / "check"
+    return policy, reward_checkpoint(run.reward, run.task, run.reward_checkpoint), out
+
+
+def trained_run(config: CheckConfig) -> tuple:
+    """``(run config, its DREM checkpoint, the report's folder, its steps)`` of a SAC run trained (or resumed) on the
+    reward of ``config.checkpoint``."""
+    from drem_maniskill.drem.checkpoint import resolve_checkpoint
+    from drem_maniskill.rl.train_policy import train_policy
+
+    task = check_env_id(config.task)
+    checkpoint = resolve_checkpoint(task, config.checkpoint)
+    out = Path(config.out) if config.out else Path("outputs/check_reward") / task / checkpoint.stem
+    run = policy_config(config, checkpoint, out)
+    return run, checkpoint, out, train_policy(run)["steps"]
 
 
 def run_curve(run: RLConfig) -> list:
@@ -200,9 +180,8 @@ def run_curve(run: RLConfig) -> list:
     Evaluation episodes run the whole horizon, so a return is ``horizon`` rewards: ``R - 1`` each in the
     shifted form.
     """
-    from drem_maniskill.rl.train_policy import read_eval_csv
-
     from drem_maniskill.rl.rewards import reward_spec
+    from drem_maniskill.rl.train_policy import read_eval_csv
 
     horizon = max_episode_steps(run.task)
     shift = 1.0 if reward_spec(run.reward).checkpoint and run.drem_form_used == "shifted" else 0.0
@@ -237,23 +216,22 @@ def judge(rows: list, expert: Optional[dict], config: CheckConfig, curve: Sequen
 
 def check_reward(config: CheckConfig) -> dict:
     """Run the check (resuming a SAC run it already started) and write ``report.json``; returns the report."""
-    from drem_maniskill.drem.checkpoint import resolve_checkpoint
     from drem_maniskill.rl.run_env import make_eval_env
-    from drem_maniskill.rl.train_policy import file_sha256, shown_path, train_policy
+    from drem_maniskill.rl.run_policy import load_policy
+    from drem_maniskill.rl.train_policy import file_sha256, shown_path
 
     if config.run:
-        run, checkpoint, out = given_run(config)
-        task, steps = run.task, run_curve(run)[-1]["steps"]
+        policy, checkpoint, out = given_run(config)
+        run = policy.config
+        steps = run_curve(run)[-1]["steps"]
     else:
-        task = check_env_id(config.task)
-        checkpoint = resolve_checkpoint(task, config.checkpoint)
-        out = Path(config.out) if config.out else Path("outputs/check_reward") / task / checkpoint.stem
-        run = policy_config(config, checkpoint, out)
-        steps = train_policy(run)["steps"]
+        run, checkpoint, out, steps = trained_run(config)
+        policy = load_policy(run.run_dir)
+    task = run.task if config.run else check_env_id(config.task)
     out.mkdir(parents=True, exist_ok=True)
     seeds = [config.eval_seed + i for i in range(config.episodes)]
     expert = expert_ends(run, seeds)
-    act = trained_policy(run)
+    act = policy.act()
     env = make_eval_env(dataclasses.replace(run, drem_form="paper"))
     rows = []
     try:
@@ -269,9 +247,7 @@ def check_reward(config: CheckConfig) -> dict:
                   sha256=None if checkpoint is None else file_sha256(checkpoint),
                   sac=dict(steps=steps, preset=run.preset, seed=run.seed, run_dir=shown_path(run.run_dir), curve=curve),
                   verdict=judge(rows, expert, config, curve), episodes=rows, config=dataclasses.asdict(config))
-    tmp = out / "report.json.tmp"
-    tmp.write_text(json.dumps(report, indent=2) + "\n")
-    os.replace(tmp, out / "report.json")
+    write_json(out / "report.json", report)
     return report
 
 

@@ -5,7 +5,7 @@ import pytest
 
 
 def test_pooled_spearman_uses_every_step_and_skips_constant_signals():
-    from drem_maniskill.pipeline.examine import _pooled_spearman
+    from drem_maniskill.evaluate.quality import _pooled_spearman
 
     eps = [dict(rewards=[0.1, 0.2, 0.3], normalized_dense=[1.0, 2.0, 4.0]),
            dict(rewards=[0.5, 0.4], normalized_dense=[5.0, 4.5])]
@@ -17,7 +17,7 @@ def test_pooled_spearman_uses_every_step_and_skips_constant_signals():
 
 
 def test_contact_plateau_is_align_successs_reward_between_contact_and_insertion_over_direct_success():
-    from drem_maniskill.pipeline.examine import contact_plateau
+    from drem_maniskill.evaluate.measures import contact_plateau
 
     # Contact (force > 3 N) from step 2; the tip goes below 1 mm at step 5.
     ep = dict(rewards=[0.1, 0.2, 0.5, 0.6, 0.7, 0.9, 1.0], force=[0, 0, 5, 6, 4, 2, 1],
@@ -31,7 +31,7 @@ def test_contact_plateau_is_align_successs_reward_between_contact_and_insertion_
 
 
 def test_contact_plateau_splits_its_steps_into_the_face_and_the_opening():
-    from drem_maniskill.pipeline.examine import contact_plateau
+    from drem_maniskill.evaluate.measures import contact_plateau
 
     # Contact from step 1; on the face 3 mm and 2 mm off, then slid to the mouth (0.4 mm off, 0.3 mm in).
     ep = dict(rewards=[0.2, 0.5, 0.7, 0.9, 1.0], force=[0, 6, 6, 2, 1],
@@ -43,18 +43,18 @@ def test_contact_plateau_splits_its_steps_into_the_face_and_the_opening():
 
 
 def test_first_contact_loss_reads_the_reward_one_and_three_steps_after():
-    from drem_maniskill.pipeline.examine import first_contact_loss
+    from drem_maniskill.evaluate.measures import first_contact_loss
 
     ep = dict(rewards=[0.1, 0.5, 0.6, 0.2, 0.15, 0.05, 0.4, 0.0], force=[0, 4, 5, 0.5, 0.2, 0.1, 6, 0.1])
     assert first_contact_loss(ep) == dict(step=3, before=0.6, after_1=0.2, after_3=0.05)  # the first loss, not the last
     assert first_contact_loss(dict(rewards=[0.1, 0.2], force=[0, 0])) is None
-    from drem_maniskill.pipeline.examine import contact_loss_drop
+    from drem_maniskill.evaluate.measures import contact_loss_drop
 
-    assert contact_loss_drop(ep) == (0.4, 0.0)  # the older measure: the last loss
+    assert contact_loss_drop(ep) == (0.4, 0.0)  # the drop at the last loss
 
 
 def test_face_lead_is_the_rise_towards_the_opening_within_each_episode_on_the_face_only():
-    from drem_maniskill.pipeline.examine import face_lead
+    from drem_maniskill.evaluate.measures import face_lead
 
     rng = np.random.default_rng(0)
     offsets = np.array([0.0, 0.3, -0.3, 0.1, -0.1] * 2)  # per episode: colours and placement shift the whole face
@@ -85,7 +85,8 @@ def test_face_lead_is_the_rise_towards_the_opening_within_each_episode_on_the_fa
 
 
 def test_the_experts_auroc_leaves_random_actions_out():
-    from drem_maniskill.pipeline.examine import _split_finals, auroc
+    from drem_maniskill.evaluate.measures import auroc
+    from drem_maniskill.evaluate.quality import _split_finals
 
     def ep(final, success):
         return dict(rewards=[0.0, final], success=success)
@@ -97,3 +98,35 @@ def test_the_experts_auroc_leaves_random_actions_out():
     assert auroc(*_split_finals(curves, ("direct_success", "noisy_expert"))) == pytest.approx(1 / 3)
     assert auroc(*_split_finals(curves, tuple(curves))) == pytest.approx(7 / 9)
 
+
+
+def test_quality_holds_every_measure_in_the_files_order():
+    from drem_maniskill.evaluate.probes import HOLD_POSITIONS
+    from drem_maniskill.evaluate.quality import quality
+
+    def ep(rewards, success, **extra):
+        return dict(rewards=rewards, success=success, force=[0.0] * len(rewards), normalized_dense=[],
+                    insertion_depth=[], radial_offset=[], **extra)
+
+    expert = [ep([0.1, 0.4, 0.9], True), ep([0.2, 0.3, 0.5], False)]
+    curves = dict(direct_success=[ep([0.2, 0.9], True)], random=[ep([0.0, 0.1], False)])
+    held = {k: dict(rewards=[0.3], mean=0.3, std=0.01 * i, reached_error_mm=0.1)
+            for i, k in enumerate(HOLD_POSITIONS)}
+    held["inserted"] = dict(rewards=[0.9], mean=0.9, std=0.0, reached_error_mm=None)
+    swaps = [dict(end=1.0, robot_at_end=0.5, objects_at_end=0.9)]
+    q = quality("PegInHole-v1", "drem.pt", range(2), expert, curves, held, swaps)
+    assert list(q) == [
+        "env_id", "checkpoint", "seeds", "value_order_spearman", "value_order_spearman_per_episode",
+        "expert_success_rate", "final_reward_auroc", "final_reward_auroc_expert_noisy", "random_mean_reward",
+        "robot_only_over_expert", "objects_only_over_expert", "search_fail_contact_loss", "contact_plateau",
+        "search_fail_first_contact_loss", "colour_spread", "held_positions", "inserted_reward_std",
+        "floor_beside_over_inserted", "side_over_inserted", "side_pushed_over_inserted", "face_pushed_over_inserted",
+        "face_over_hover", "turned_over_upright", "turned_over_inserted", "success_rate",
+        "spearman_with_normalized_dense", "spearman_with_insertion_depth", "spearman_with_normalized_dense_expert",
+        "dense_curves", "curves", "expert_curves"]
+    assert q["value_order_spearman"] == pytest.approx(1.0) and q["expert_success_rate"] == 0.5
+    assert q["final_reward_auroc"] == 1.0 and q["random_mean_reward"] == pytest.approx(0.05)
+    assert q["robot_only_over_expert"] == 0.5 and q["face_over_hover"] == pytest.approx(1.0)
+    assert q["floor_beside_over_inserted"] is None  # not held here
+    # Over the fixed places above the face only: the two below it ("pressed 3 mm beside", "25 mm down") do not count.
+    assert q["colour_spread"]["max_std"] == pytest.approx(0.06)

@@ -1,0 +1,1 @@
+"""Tests of drem_maniskill.evaluate."""
