@@ -15,13 +15,13 @@ a wheel; ``resolve_checkpoint`` finds them.
 from __future__ import annotations
 
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Optional
 
 import torch
+
+from drem_maniskill.utils.atomic import atomic_path
 
 FORMAT = "drem-maniskill-reward/1"
 
@@ -36,21 +36,12 @@ class CheckpointError(ValueError):
 
 
 def save_checkpoint(path: str, header: dict, weights: dict) -> str:
-    """Write the checkpoint atomically (temp file + rename); returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write the checkpoint atomically (``utils.atomic``); returns the path."""
     payload = {"format": FORMAT, "header": json.dumps(header, sort_keys=True),
                "weights": {k: v.detach().cpu() for k, v in weights.items()}}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(payload, tmp)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; a checkpoint is meant to be shared
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return str(path)
+    return str(Path(path))
 
 
 def load_checkpoint(path: str) -> tuple[dict, dict]:

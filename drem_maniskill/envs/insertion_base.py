@@ -15,7 +15,7 @@ keyed part, the orientation tolerance. Everything here is batched over ``num_env
 
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 import sapien
@@ -26,18 +26,16 @@ from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.building.ground import build_ground
-from mani_skill.utils.geometry.rotation_conversions import (
-    axis_angle_to_quaternion,
-    quaternion_to_matrix,
-)
+from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from mani_skill.utils.structs import Actor, Pose
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
-from drem_maniskill.baselines.engineered import engineered_reward, pose_distance
 from drem_maniskill.drem.mode import DREMRewardMode
 from drem_maniskill.envs.agent import FULL_URDF, HeldPart, PandaInsertion
 from drem_maniskill.envs.ft_sensor import WristFTSensor
-from drem_maniskill.utils.state import unflatten_like
+from drem_maniskill.envs.insertion_rewards import InsertionRewards
+from drem_maniskill.envs.placement import SocketPlacement, yaw_quat
+from drem_maniskill.envs.task_state import TaskState
 
 RENDER_STYLES = ("lean", "full")
 # Group-2 collision bit on every robot link, held part included: no contact forces between
@@ -50,30 +48,15 @@ _TCP_IN_HAND = 0.1034
 _FLIP_X = [0.0, 1.0, 0.0, 0.0]
 
 
-def _yaw_quat(yaw: torch.Tensor) -> torch.Tensor:
-    """Quaternions ``[B, 4]`` (wxyz) of rotations by ``yaw`` about world z."""
-    axis = torch.zeros(yaw.shape[0], 3, device=yaw.device)
-    axis[:, 2] = yaw
-    return axis_angle_to_quaternion(axis)
+class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState, BaseEnv):
+    """Base class: a held part, a socket, two cameras and a wrist F/T sensor.
 
-
-class InsertionEnv(DREMRewardMode, BaseEnv):
-    """Base class: a held part, a socket, two cameras and a wrist F/T sensor."""
+    Its mixins: the reward modes (``InsertionRewards``: ``REWARD_FUNCTIONS``), the socket's placement
+    (``SocketPlacement``), the F/T observation and the task's state keys (``TaskState``).
+    """
 
     SUPPORTED_ROBOTS = ["panda_insertion"]
     agent: PandaInsertion
-
-    # One place to add a reward mode: name -> method computing a [num_envs] tensor ("drem" is
-    # DREMRewardMode's, which also loads the checkpoint).
-    REWARD_FUNCTIONS = {
-        "sparse": "compute_sparse_reward",
-        "dense": "compute_dense_reward",
-        "normalized_dense": "compute_normalized_dense_reward",
-        "none": "_zero_reward",
-        "drem": "compute_drem_reward",
-        "engineered": "compute_engineered_reward",
-    }
-    SUPPORTED_REWARD_MODES = tuple(REWARD_FUNCTIONS)
 
     # --- geometry, set by subclasses (metres, radians) ---
     default_clearance: float = 0.0
@@ -91,8 +74,8 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
     # in the opening, and one lower and farther out is beside the socket.
     opening_radius: float = 0.01
     inserted_height: float = -0.001
-    # A tip above this is on or over the face, not caught in the opening's mouth: at -0.5 mm a lineage from the USB
-    # entry seed stayed 0.4-0.5 mm in the mouth for all its face steps.
+    # A tip above this is on or over the face, not caught in the opening's mouth. A tip caught in the USB opening's
+    # mouth rests 0.4-0.5 mm below the face, so the bound sits above that, just under the face.
     face_seed_height: float = -0.0002
 
     # --- randomization and start region ---
@@ -132,7 +115,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         self.render_style = render_style
         self.ft_history = int(ft_history)
         self.engineered_kappa = float(engineered_kappa)  # 1/m, for reward_mode="engineered"
-        # Rebuilding the scene costs 160-300 ms on this CPU; colours and poses change without it.
+        # Colours and poses change without rebuilding the scene, and a rebuild costs hundreds of milliseconds a reset.
         if reconfiguration_freq is None:
             reconfiguration_freq = 0
         super().__init__(
@@ -277,7 +260,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             off[:, :2] = torch.as_tensor(rng.uniform(-xy_range, xy_range, size=(2,)), dtype=torch.float32)
             off[:, 2] = torch.as_tensor(rng.uniform(*self.start_height_range), dtype=torch.float32)
             part_yaw = torch.as_tensor(rng.uniform(-self.start_yaw_range, self.start_yaw_range), dtype=torch.float32)
-            part_pose = Pose.create_from_pq(top.p + off, _yaw_quat(socket_yaw + part_yaw))
+            part_pose = Pose.create_from_pq(top.p + off, yaw_quat(socket_yaw + part_yaw))
             tcp_target = part_pose * Pose.create(sapien.Pose(p=[0, 0, self.part_length_below_tcp], q=_FLIP_X))
             qpos = self._solve_ik(tcp_target, env_idx)
             self.agent.robot.set_qpos(qpos)
@@ -321,56 +304,6 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             q[:, self._arm_idx] = sol.to(q.dtype)
         return q
 
-    # ------------------------------------------------------------------ sensing
-    def _after_simulation_step(self):
-        self.ft.update()
-
-    def _get_obs_extra(self, info: dict):
-        obs = dict(tcp_pose=self.agent.tcp.pose.raw_pose, ft=self.ft.buffer.clone())
-        if self.obs_mode_struct.use_state:
-            obs.update(
-                part_pose=self.part.pose.raw_pose,
-                socket_pose=self.socket.pose.raw_pose,
-                tip_in_socket=info["tip_in_socket"],
-            )
-        return obs
-
-    # ------------------------------------------------------------------ state
-    def get_state_dict(self):
-        """Sim state plus controller state, the F/T history and drive targets (to replay a step)."""
-        state = super().get_state_dict()
-        state["task"] = dict(
-            ft_history=self.ft.get_state(),
-            drive_targets=self.agent.robot.get_drive_targets().clone(),
-        )
-        return state
-
-    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
-        """Restore a ``get_state_dict()`` state, including the controller and the F/T history."""
-        super().set_state_dict(state, env_idx)
-        if "controller" in state:
-            self.agent.set_controller_state(state["controller"])
-        task = state.get("task", {})
-        if "ft_history" in task:
-            self.ft.set_state(task["ft_history"], env_idx)
-        if "drive_targets" in task:
-            targets = torch.as_tensor(task["drive_targets"], device=self.device)
-            if targets.ndim == 1:
-                targets = targets[None].expand(self.num_envs, -1)
-            if env_idx is not None:
-                current = self.agent.robot.get_drive_targets().clone()
-                current[env_idx] = targets[env_idx]
-                targets = current
-            self.agent.robot.set_joint_drive_targets(targets, self.agent.robot.active_joints)
-
-    def set_state(self, state, env_idx: torch.Tensor = None):
-        """Restore a flat ``get_state()`` vector, task keys included (ManiSkill's drops them)."""
-        template = self.get_state_dict()
-        state = torch.as_tensor(state, device=self.device)
-        if state.ndim == 1:
-            state = state[None]
-        self.set_state_dict(unflatten_like(template, state), env_idx)
-
     # ------------------------------------------------------------------ task
     def tip_pose_in_socket(self) -> Pose:
         """Pose of the part frame (tip) in the socket frame (top of the opening)."""
@@ -378,48 +311,6 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             torch.tensor([[0, 0, self.socket_height]], device=self.device).repeat(self.num_envs, 1)
         )
         return top.inv() * self.part.pose
-
-    # ------------------------------------------------------------------ placement
-    def socket_placements(self) -> torch.Tensor:
-        """The socket's placement ``[num_envs, 3]``: x, y (m, world) and yaw (rad), as resets draw it."""
-        pose = self.socket.pose
-        q = pose.q  # yaw only: wxyz = (cos yaw/2, 0, 0, sin yaw/2)
-        yaw = 2 * torch.atan2(q[:, 3], q[:, 0])
-        return torch.cat([pose.p[:, :2], yaw[:, None]], dim=1)
-
-    def random_socket_placements(self, rng: np.random.Generator, count: int) -> np.ndarray:
-        """``count`` placements ``[count, 3]`` drawn as ``_initialize_episode`` draws the socket's."""
-        xy = rng.uniform(-self.socket_xy_range, self.socket_xy_range, size=(count, 2)) + np.asarray(self.socket_center)
-        yaw = rng.uniform(-self.socket_yaw_range, self.socket_yaw_range, size=(count, 1))
-        return np.concatenate([xy, yaw], axis=1)
-
-    @staticmethod
-    def _socket_pose_at(xy: torch.Tensor, yaw: torch.Tensor, z: torch.Tensor) -> Pose:
-        """The socket's pose ``[B]``: at ``xy`` ``[B, 2]`` on the floor, turned by ``yaw``, its base at ``z``."""
-        return Pose.create_from_pq(torch.cat([xy, z[:, None]], dim=1), _yaw_quat(yaw))
-
-    def place_socket(self, placements) -> None:
-        """Move the socket to ``placements`` ``[num_envs, 3]`` and the robot (with the held part) rigidly with it.
-
-        Everything relative to the socket stays as it was, so the next step replays the same in
-        the socket's frame (the robot's base moves instead of its joints: the floor and gravity do
-        not care). The backward sampler uses this to show the encoder the socket where every
-        reset may put it, from one demo.
-        """
-        placements = torch.as_tensor(placements, dtype=torch.float32, device=self.device).reshape(self.num_envs, 3)
-        old = self.socket.pose
-        new = self._socket_pose_at(placements[:, :2], placements[:, 2], old.p[:, 2])
-        move = new * old.inv()
-        root = self.agent.robot.pose
-        self.socket.set_pose(new)
-        self.agent.robot.set_root_pose(move * root)
-
-    def pose_at_placement(self, raw_pose: torch.Tensor, placement) -> torch.Tensor:
-        """World poses ``[B, 7]`` moved to where they would be with the socket at ``placement`` ``[3]`` (x, y, yaw)."""
-        ref = torch.as_tensor(placement, dtype=torch.float32, device=self.device).reshape(1, 3).expand(self.num_envs, 3)
-        socket = self.socket.pose
-        move = self._socket_pose_at(ref[:, :2], ref[:, 2], socket.p[:, 2]) * socket.inv()
-        return (move * Pose.create(raw_pose)).raw_pose
 
     def in_start_region(self) -> torch.Tensor:
         """Bool ``[num_envs]``: the part tip is more than ``start_region_height`` above the socket."""
@@ -438,6 +329,7 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
         return tilt, yaw.abs()
 
     def evaluate(self):
+        """The success test and the quantities the rewards read, per env."""
         rel = self.tip_pose_in_socket()
         depth = -rel.p[:, 2]
         radial = torch.linalg.norm(rel.p[:, :2], dim=1)
@@ -456,40 +348,3 @@ class InsertionEnv(DREMRewardMode, BaseEnv):
             tip_in_socket=rel.p,
             in_start_region=rel.p[:, 2] > self.start_region_height,
         )
-
-    # ------------------------------------------------------------------ rewards
-    def get_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        return getattr(self, self.REWARD_FUNCTIONS[self.reward_mode])(obs=obs, action=action, info=info)
-
-    def _zero_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        return torch.zeros(self.num_envs, device=self.device)
-
-    def compute_engineered_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        """The paper's hand-crafted ``-exp(kappa d)``, d the tip's pose distance to the fully-inserted pose."""
-        # Goal in the socket frame: on the axis at the bottom of the hole, axes aligned.
-        goal = torch.tensor([[0.0, 0.0, -self.hole_depth]], device=self.device)
-        rot_error = torch.sqrt(info["tilt_error"] ** 2 + info["yaw_error"] ** 2)
-        return engineered_reward(pose_distance(info["tip_in_socket"], goal, rot_error), self.engineered_kappa)
-
-    def compute_sparse_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        """1 on success, else 0."""
-        return info["success"].float()
-
-    def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        """Staged: reach above the opening (1), align axis and yaw (1), insert (2), success (6)."""
-        height = info["tip_in_socket"][:, 2]
-        radial = info["radial_offset"]
-        # Descending below the pre-insertion height is not penalised by the reach stage.
-        reach_dist = torch.sqrt(radial**2 + (height - 0.01).clamp(min=0) ** 2)
-        reward = 1 - torch.tanh(5 * reach_dist)
-        align = 0.5 * (1 - torch.tanh(200 * radial)) + 0.25 * (1 - torch.tanh(5 * info["tilt_error"]))
-        align = align + 0.25 * (1 - torch.tanh(5 * info["yaw_error"]))
-        reward = reward + align
-        reward = reward + 2 * info["is_aligned"].float() * info["depth_fraction"]
-        reward[info["success"]] = 6.0
-        return reward
-
-    def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        """``dense`` scaled to [0, 1]."""
-        return self.compute_dense_reward(obs=obs, action=action, info=info) / 6.0
-

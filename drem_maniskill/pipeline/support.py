@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import json
-import os
-from pathlib import Path
-
 import numpy as np
 import torch
 
 from drem_maniskill.drem.guard import GUARD_QUANTILE, image_errors
 from drem_maniskill.drem.reward import DREMReward
 from drem_maniskill.pipeline.dataset import TreeDataset
+from drem_maniskill.utils.atomic import write_json
 from drem_maniskill.utils.progress import progress_bar
 
 
@@ -34,7 +31,5 @@ def calibrate_support(checkpoint: str, tree: str, out: str, quantile: float = GU
         max={c: float(e.max()) for c, e in errors.items()},
         median={c: float(np.median(e)) for c, e in errors.items()},
     )
-    tmp = Path(str(out) + ".tmp")
-    tmp.write_text(json.dumps(result, indent=1) + "\n")
-    os.replace(tmp, out)
+    write_json(out, result, indent=1)
     return result

@@ -14,11 +14,10 @@ expert's first and last observations.
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 import torch
@@ -27,6 +26,7 @@ from drem_maniskill.drem.checkpoint import save_checkpoint
 from drem_maniskill.drem.model import DREMModel, ModelConfig, check_normaliser, cosine_distance
 from drem_maniskill.pipeline.dataset import TreeDataset
 from drem_maniskill.pipeline.losses import reconstruction_loss, triplet_loss
+from drem_maniskill.utils.atomic import atomic_path, write_text
 from drem_maniskill.utils.progress import progress_bar
 from drem_maniskill.version import __version__
 
@@ -42,9 +42,10 @@ class TrainConfig:
     eps: float = 4.0
     """Pairs at most this many depths apart are temporal neighbours (the triplet loss's epsilon)."""
     beta1: float = 0.04
-    """Margin of the triplet loss for neighbouring pairs."""
+    """Margin of the triplet loss for non-neighbouring pairs, per step of time between them: the later state must be
+    closer to the goal by at least ``beta1 * (t2 - t1)``."""
     beta2: float = 0.04
-    """Margin of the triplet loss for non-neighbouring pairs."""
+    """Bound of the triplet loss for neighbouring pairs: the later state may be closer to the goal by at most this."""
     alpha: float = 0.2
     """Weight of the reconstruction loss beside the triplet loss."""
     pairs_per_batch: int = 32
@@ -97,6 +98,28 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
         actors = _actor_count(data.header) if config.model.poses_relative else 0
         config = replace(config, model=replace(config.model, poses_size=int(data.poses.shape[1]), poses_actors=actors))
     torch.manual_seed(config.seed)
+    model = _build_model(config, data, init_checkpoint)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    gen = torch.Generator().manual_seed(config.seed)
+    state_path = out / "train_state.pt"
+    config_json = json.loads(json.dumps(asdict(config)))
+    step = _resume(state_path, model, opt, gen, config_json, dataset_path, len(data.depth))
+    record = dict(train=config_json, dataset=str(dataset_path), trees=[str(t) for t in trees], sampler=data.header)
+    write_text(out / "config.json", json.dumps(record, indent=2))
+
+    def save(at: int) -> None:
+        _save_train_state(state_path, model, opt, gen, at, config_json, dataset_path, len(data.depth))
+
+    _optimise(model, opt, gen, data, config, step, out / "tb", save, progress)
+    forest = dict(trees=forest_record(dataset_path, trees)) if trees else {}
+    if negatives:
+        forest["negatives"] = dict(files=[Path(n).name for n in negatives], nodes=negative_nodes)
+    return export_reward(model, data, config, out / "drem.pt", {**forest, **(extra_header or {})})
+
+
+def _build_model(config: TrainConfig, data: TreeDataset, init_checkpoint: Optional[str]) -> DREMModel:
+    """The model to train, on ``config.device``: the scene-poses statistics of ``data``, the weights of
+    ``init_checkpoint`` when given."""
     device = torch.device("cuda" if config.device == "auto" and torch.cuda.is_available() else
                           ("cpu" if config.device == "auto" else config.device))
     model = DREMModel(config.model).to(device)
@@ -106,39 +129,44 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
         _load_weights(model, init_checkpoint, config.model)
     model.image_decoders.to(memory_format=torch.channels_last)
     model.image_encoders.to(memory_format=torch.channels_last)
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
-    gen = torch.Generator().manual_seed(config.seed)
-    state_path = out / "train_state.pt"
-    config_json = json.loads(json.dumps(asdict(config)))
-    step = _resume(state_path, model, opt, gen, config_json, dataset_path, len(data.depth))
-    record = dict(train=config_json, dataset=str(dataset_path), trees=[str(t) for t in trees], sampler=data.header)
-    (out / "config.json").write_text(json.dumps(record, indent=2))
+    return model
 
+
+def _losses(model: DREMModel, data: TreeDataset, goal: dict, config: TrainConfig, gen: torch.Generator):
+    """One iteration's pairs through the model: ``(total, triplet, reconstruction)`` losses and the samples it read."""
+    device = next(model.parameters()).device
+    a, b = data.sample_pairs(config.pairs_per_batch, config.eps, gen)
+    idx = torch.cat([a, b])
+    batch = {k: torch.cat([v, goal[k]]).to(device) for k, v in data.batch(idx).items()}
+    h, recon, inputs = model(batch)
+    h_goal, h = h[-1:], h[:-1]
+    dist = cosine_distance(h, h_goal)
+    n = len(a)
+    # Temporal position = -depth: the goal (depth 0) comes last.
+    ta, tb = -data.depth[a].to(device), -data.depth[b].to(device)
+    l_triplet = triplet_loss(dist[:n], dist[n:], ta, tb, config.eps, config.beta1, config.beta2).mean()
+    l_recon = reconstruction_loss(recon, inputs)
+    return (l_triplet + config.alpha * l_recon, l_triplet, l_recon), len(idx) + 1
+
+
+def _optimise(model: DREMModel, opt, gen: torch.Generator, data: TreeDataset, config: TrainConfig, step: int,
+              tb_dir: Path, save: Callable[[int], None], progress: bool) -> None:
+    """Train from ``step`` to ``config.iterations``: losses to TensorBoard in ``tb_dir``, ``save(step)`` every
+    ``save_every`` iterations and at the end."""
     from torch.utils.tensorboard import SummaryWriter
 
-    writer = SummaryWriter(str(out / "tb"))
+    writer = SummaryWriter(str(tb_dir))
     goal = data.batch(torch.tensor([data.goal_index]))
     t0, seen = time.time(), 0
     bar = progress_bar(total=config.iterations, initial=step, desc="train reward", unit="it", enabled=progress)
     model.train()
     while step < config.iterations:
-        a, b = data.sample_pairs(config.pairs_per_batch, config.eps, gen)
-        idx = torch.cat([a, b])
-        batch = {k: torch.cat([v, goal[k]]).to(device) for k, v in data.batch(idx).items()}
-        h, recon, inputs = model(batch)
-        h_goal, h = h[-1:], h[:-1]
-        dist = cosine_distance(h, h_goal)
-        n = len(a)
-        # Temporal position = -depth: the goal (depth 0) comes last.
-        ta, tb = -data.depth[a].to(device), -data.depth[b].to(device)
-        l_triplet = triplet_loss(dist[:n], dist[n:], ta, tb, config.eps, config.beta1, config.beta2).mean()
-        l_recon = reconstruction_loss(recon, inputs)
-        loss = l_triplet + config.alpha * l_recon
+        (loss, l_triplet, l_recon), samples = _losses(model, data, goal, config, gen)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         step += 1
-        seen += len(idx) + 1
+        seen += samples
         bar.update(1)
         if step % config.log_every == 0 or step == config.iterations:
             rate = seen / max(time.time() - t0, 1e-9)
@@ -148,13 +176,9 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
             writer.add_scalar("speed/samples_per_s", rate, step)
             bar.set_postfix(triplet=f"{l_triplet.item():.4f}", recon=f"{l_recon.item():.4f}", samples_s=f"{rate:.0f}")
         if step % config.save_every == 0 or step == config.iterations:
-            _save_train_state(state_path, model, opt, gen, step, config_json, dataset_path, len(data.depth))
+            save(step)
     bar.close()
     writer.close()
-    forest = dict(trees=forest_record(dataset_path, trees)) if trees else {}
-    if negatives:
-        forest["negatives"] = dict(files=[Path(n).name for n in negatives], nodes=negative_nodes)
-    return export_reward(model, data, config, out / "drem.pt", {**forest, **(extra_header or {})})
 
 
 def forest_record(first: str, trees: Sequence[str]) -> list:
@@ -277,7 +301,6 @@ def _unflatten_opt(state: dict) -> dict:
 
 
 def _save_train_state(path: Path, model, opt, gen, step, config_json, dataset_path, nodes: int) -> None:
-    tmp = path.with_suffix(".tmp")
-    torch.save(dict(model=model.state_dict(), opt=_flatten_opt(opt.state_dict()), gen=gen.get_state(), step=step,
-                    config=json.dumps(config_json), dataset=str(Path(dataset_path).resolve()), nodes=nodes), tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(dict(model=model.state_dict(), opt=_flatten_opt(opt.state_dict()), gen=gen.get_state(), step=step,
+                        config=json.dumps(config_json), dataset=str(Path(dataset_path).resolve()), nodes=nodes), tmp)

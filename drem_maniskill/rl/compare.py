@@ -125,6 +125,31 @@ def aggregate(runs: list[dict]) -> dict:
     return out
 
 
+def curve_row(task: str, reward: str, curve: dict, levels: Sequence[float]) -> dict:
+    """The table row of one curve of ``aggregate``: final success, and the steps to each level (mean, per seed)."""
+    row = dict(task=task, reward=reward, seeds=len(curve["seeds"]), final_steps=int(curve["steps"][-1]),
+               final_success=float(curve["mean"][-1]), final_success_min=float(curve["min"][-1]),
+               final_success_max=float(curve["max"][-1]), seed_ids=curve["seeds"])
+    for level in levels:
+        name = f"_to_{round(level * 100)}"
+        row["steps" + name] = _reached(steps_to_reach(curve["steps"], list(curve["mean"]), level))
+        row["seed_steps" + name] = [_reached(steps_to_reach(curve["steps"], list(c), level)) for c in curve["curves"]]
+    return row
+
+
+def markdown_table(table: list[dict], levels: Sequence[float]) -> str:
+    """``curve_row`` rows as a Markdown table (the text of ``comparison.md``)."""
+    names = [f"_to_{round(level * 100)}" for level in levels]
+    head = ["task", "reward", "seeds", "final_steps", "final_success"] + [f"steps{n} (mean; per seed)" for n in names]
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for r in table:
+        final = f"{r['final_success']:.2f} ({r['final_success_min']:.2f}-{r['final_success_max']:.2f})"
+        reach = [f"{r['steps' + n]}; {' / '.join(map(str, r['seed_steps' + n]))}" for n in names]
+        lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | "
+                     + " | ".join(reach) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str = "minmax",
                  levels: Sequence[float] = (0.5, 0.8)) -> dict:
     """Plot and tabulate runs: ``<out>/comparison.png``, ``comparison.json``, ``comparison.md``; returns the table.
@@ -158,14 +183,7 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
             own = ", ".join(part for part in reward.split(", ") if part not in shared)
             line, = ax.plot(x, g["mean"], label=textwrap.fill(f"{own} ({len(g['seeds'])} seeds)", 60))
             ax.fill_between(x, np.clip(lo, 0, 1), np.clip(hi, 0, 1), color=line.get_color(), alpha=0.2)
-            row = dict(task=task, reward=reward, seeds=len(g["seeds"]), final_steps=int(x[-1]),
-                       final_success=float(g["mean"][-1]), final_success_min=float(g["min"][-1]),
-                       final_success_max=float(g["max"][-1]), seed_ids=g["seeds"])
-            for level in levels:
-                name = f"_to_{round(level * 100)}"
-                row["steps" + name] = _reached(steps_to_reach(g["steps"], list(g["mean"]), level))
-                row["seed_steps" + name] = [_reached(steps_to_reach(g["steps"], list(c), level)) for c in g["curves"]]
-            table.append(row)
+            table.append(curve_row(task, reward, g, levels))
         ax.set_title(task + ("\n" + textwrap.fill(", ".join(shared), 70) if shared else ""), fontsize=9)
         ax.set_xlabel("environment steps")
         ax.set_ylabel("success rate")
@@ -181,15 +199,7 @@ def compare_runs(run_dirs: Sequence, out: str = "outputs/rl/compare", band: str 
 
     summary = dict(levels=list(levels), band=band, rows=table)
     (out_dir / "comparison.json").write_text(json.dumps(summary, indent=2) + "\n")
-    names = [f"_to_{round(level * 100)}" for level in levels]
-    head = ["task", "reward", "seeds", "final_steps", "final_success"] + [f"steps{n} (mean; per seed)" for n in names]
-    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
-    for r in table:
-        final = f"{r['final_success']:.2f} ({r['final_success_min']:.2f}-{r['final_success_max']:.2f})"
-        reach = [f"{r['steps' + n]}; {' / '.join(map(str, r['seed_steps' + n]))}" for n in names]
-        lines.append(f"| {r['task']} | {r['reward']} | {r['seeds']} | {r['final_steps']} | {final} | "
-                     + " | ".join(reach) + " |")
-    (out_dir / "comparison.md").write_text("\n".join(lines) + "\n")
+    (out_dir / "comparison.md").write_text(markdown_table(table, levels))
     return dict(png=str(png), json=str(out_dir / "comparison.json"), markdown=str(out_dir / "comparison.md"),
                 rows=table)
 

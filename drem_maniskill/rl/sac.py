@@ -111,6 +111,18 @@ class SAC(stable_baselines3.SAC):
                 return super().train(gradient_steps, batch_size)
             return self._train_shared(gradient_steps, batch_size)
 
+    def _temperature_step(self, log_prob: th.Tensor, losses: list) -> th.Tensor:
+        """The step's entropy coefficient; a learned one takes its own step (its loss appended to ``losses``)."""
+        if self.ent_coef_optimizer is None or self.log_ent_coef is None:
+            return self.ent_coef_tensor
+        ent_coef = th.exp(self.log_ent_coef.detach())
+        ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+        losses.append(ent_coef_loss.item())
+        self.ent_coef_optimizer.zero_grad()
+        ent_coef_loss.backward()
+        self.ent_coef_optimizer.step()
+        return ent_coef
+
     def _train_shared(self, gradient_steps: int, batch_size: int) -> None:
         """The shared-encoder gradient steps (module docstring)."""
         if self.use_sde:
@@ -135,15 +147,7 @@ class SAC(stable_baselines3.SAC):
             detached = features.detach()
             actions_pi, log_prob = _action_log_prob(actor, detached)
             log_prob = log_prob.reshape(-1, 1)
-            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
-                ent_coef = th.exp(self.log_ent_coef.detach())
-                ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
-                ent_coef_losses.append(ent_coef_loss.item())
-                self.ent_coef_optimizer.zero_grad()
-                ent_coef_loss.backward()
-                self.ent_coef_optimizer.step()
-            else:
-                ent_coef = self.ent_coef_tensor
+            ent_coef = self._temperature_step(log_prob, ent_coef_losses)
             ent_coefs.append(ent_coef.item())
 
             target_q = data.rewards + (1 - data.dones) * discounts * (next_q - ent_coef * next_log_prob.reshape(-1, 1))

@@ -7,6 +7,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from drem_maniskill.utils.atomic import write_text
+
 
 def cache_dir() -> Path:
     """The package's cache folder (``$XDG_CACHE_HOME/drem_maniskill``, else a temp folder)."""
@@ -25,9 +27,6 @@ def cached_text_file(stem: str, suffix: str, text: str) -> str:
     folder = cache_dir()
     path = folder / f"{stem}_{hashlib.sha256(text.encode()).hexdigest()[:12]}{suffix}"
     if not path.exists():
-        # Several worker processes may create the same file at once: write, then rename.
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=suffix)
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
+        # Several worker processes may create the same file at once: each writes whole, the last one wins.
+        write_text(path, text)
     return str(path)

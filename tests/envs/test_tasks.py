@@ -291,9 +291,9 @@ def test_usb_enters_only_one_way_up():
             )
             from mani_skill.utils.structs import Pose
 
-            from drem_maniskill.envs.insertion_base import _yaw_quat
+            from drem_maniskill.envs.placement import yaw_quat
 
-            turned = quaternion_multiply(_yaw_quat(torch.tensor([math.pi])), pose.q)
+            turned = quaternion_multiply(yaw_quat(torch.tensor([math.pi])), pose.q)
             u.socket.set_pose(Pose.create_from_pq(pose.p, turned))
             u.yaw_symmetry = 2
         from drem_maniskill.experts import get_policy

@@ -122,9 +122,10 @@ def test_a_run_label_names_only_the_inputs_its_policy_normalised():
     from drem_maniskill.rl.compare import run_label
     from drem_maniskill.rl.config import RLConfig
 
-    labels = {r: run_label(RLConfig.preset("image", reward=r).to_dict()) for r in ("sparse", "drem")}
+    labels = {r: run_label(RLConfig.from_preset("image", reward=r).to_dict()) for r in ("sparse", "drem")}
     assert "norm state," in labels["sparse"] + "," and "norm state+ft" not in labels["sparse"]
     assert "norm state+ft" in labels["drem"]
-    assert "norm state+ft" in run_label(RLConfig.preset("light", reward="sparse").to_dict())  # every policy gets it
-    stock = run_label(RLConfig.preset("state", task="PushCube-v1", reward="drem").to_dict())
+    # Every policy gets it.
+    assert "norm state+ft" in run_label(RLConfig.from_preset("light", reward="sparse").to_dict())
+    stock = run_label(RLConfig.from_preset("state", task="PushCube-v1", reward="drem").to_dict())
     assert "norm state," in stock + "," and "+ft" not in stock  # a stock task has no F/T sensor

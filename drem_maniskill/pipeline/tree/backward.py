@@ -40,7 +40,7 @@ class NoStartRegionError(RuntimeError):
     """The tree reached ``max_depth`` before enough seeds were in the start region."""
 
 
-def pose_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_weight: float = 0.0) -> np.ndarray:
+def ee_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_weight: float = 0.0) -> np.ndarray:
     """Distance between end-effector states ``[.., 7]`` or ``[.., 8]`` (pose, gripper width): position L2 plus the
     weighted rotation angle, plus the weighted gripper-width difference when both carry one."""
     pos = np.linalg.norm(a[..., :3] - b[..., :3], axis=-1)
@@ -88,8 +88,7 @@ def backward_loop(partial: Path, pool: ChildPool, config: SamplerConfig, expert_
         merged = pool.children_of(parents, seed_nodes, depth, config.num_children, scale)
         bar.set_postfix(children=config.num_children * len(seeds), in_start=in_region)
         # Expert-guided progress measure: the closest end-effector states to the expert's d + 1 steps back.
-        dist = pose_distance(merged["ee"], expert_ee[max(goal - (depth + 1), 0)], config.rotation_weight,
-                             gripper_weight)
+        dist = ee_distance(merged["ee"], expert_ee[max(goal - (depth + 1), 0)], config.rotation_weight, gripper_weight)
         chosen = np.argsort(dist, kind="stable")[: config.num_seeds]
         depth += 1
         seed_nodes = tree_file.append_depth(partial, merged, depth, chosen)
@@ -153,7 +152,7 @@ def _check(expert_path: str, expert: ExpertTrajectory, sampler: ChildSampler, co
 
 def resumable(saved: dict, now: dict) -> bool:
     """Whether a partial tree with header ``saved`` goes on under header ``now``: the same env and expert, and a
-    config that ``SamplerConfig.can_resume`` it (older headers hold the flat config form)."""
+    config that ``SamplerConfig.can_resume`` it (a config ``SamplerConfig.from_dict`` cannot read: no)."""
     try:
         old = SamplerConfig.from_dict(saved.get("config", {}))
     except (ValueError, TypeError):

@@ -3,9 +3,8 @@
 One row per node in each of ``DATASET_KEYS`` (images, F/T, the scene's poses, the end-effector pose, the node's
 ``depth`` label and ``parent``), and:
 
-* ``attrs["header"]``: JSON of the sampler config (``SamplerConfig.to_dict()``; trees sampled before it was nested
-  hold the flat form, which ``SamplerConfig.from_dict`` reads too), the env, its cameras and, on our insertion tasks,
-  its ``socket_geometry``;
+* ``attrs["header"]``: JSON of the sampler config (``SamplerConfig.to_dict()``), the env, its cameras and, on our
+  insertion tasks, its ``socket_geometry``;
 * ``expert/{first,last}/...``: the expert's first and last observations (the reward's anchors), ``expert/tcp_pose``;
 * ``seeds/<group>/{state,in_start_region,node}``: the seeds each depth or phase step kept, with their flat states;
 * counters in ``attrs``: ``node_count``, ``completed_depth``, ``start_depth``, one per extra phase
@@ -19,7 +18,6 @@ renamed to ``<out>``.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Optional
 
@@ -27,6 +25,7 @@ import h5py
 import numpy as np
 
 from drem_maniskill.envs.adapter import SocketGeometry, socket_geometry_of
+from drem_maniskill.utils.atomic import promote
 
 DATASET_KEYS = ("fixed_rgb", "wrist_rgb", "ft", "poses", "tcp_pose", "colors", "placement", "tip_in_socket", "depth",
                 "parent", "in_start_region", "is_seed")
@@ -174,8 +173,7 @@ def finish(partial: Path, out_path: Path) -> str:
     with h5py.File(partial, "a") as f:
         f.attrs["complete"] = True
         f.attrs["final_depth"] = int(f.attrs["completed_depth"])
-    os.replace(partial, out_path)
-    return str(out_path)
+    return str(promote(partial, out_path))
 
 
 def tree_geometry(f: h5py.File) -> SocketGeometry:
