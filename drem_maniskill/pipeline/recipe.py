@@ -1,5 +1,8 @@
 """A task's DREM recipe: every setting that makes its reward, as data (``tasks/<id>/recipe.toml``).
 
+A task's folder (its recipe and committed demo) is ``tasks/<id>/`` in a checkout, else the copy a wheel installs
+under ``<prefix>/share/drem-maniskill/tasks/<id>/`` (``TASKS_DIRS``, ``task_folder``).
+
 Sections (each optional; what is left out takes the defaults below or the config classes' own):
 
 * ``[demo]``: the expert demo. ``expert`` names a committed demo beside the recipe (``expert.h5``, its
@@ -25,6 +28,7 @@ Sections (each optional; what is left out takes the defaults below or the config
 from __future__ import annotations
 
 import copy
+import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Optional, Union
@@ -34,7 +38,10 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-TASKS_DIR = Path(__file__).resolve().parents[2] / "tasks"
+# The tasks' folders: beside the package in a checkout; a wheel installs them as data files under
+# <prefix>/share/drem-maniskill/tasks (pyproject's data-files), as it does the shipped rewards.
+TASKS_DIRS = (Path(__file__).resolve().parents[2] / "tasks",
+              Path(sys.prefix) / "share" / "drem-maniskill" / "tasks")
 FULL = "full"
 DICT = "<dict>"
 GENERAL = "default"
@@ -105,11 +112,11 @@ class Recipe:
         return RoundsConfig(**self.rounds)
 
     def expert_file(self) -> Optional[Path]:
-        """The committed demo ``[demo] expert`` names, beside the recipe (a dict's: in ``tasks/<task>/``), or None."""
+        """The committed demo ``[demo] expert`` names, beside the recipe (a dict's: in the task's folder), or None."""
         name = self.demo.get("expert")
         if not name:
             return None
-        folder = TASKS_DIR / self.task if self.source in (GENERAL, DICT) else Path(self.source).parent
+        folder = task_folder(self.task) if self.source in (GENERAL, DICT) else Path(self.source).parent
         return folder / name
 
     def exam_seeds(self) -> range:
@@ -121,9 +128,17 @@ class Recipe:
         return {k: v for k, v in asdict(self).items() if k not in ("source",)}
 
 
+def task_folder(task: str) -> Path:
+    """The folder of ``task``'s recipe and demo: the first of ``TASKS_DIRS`` that holds one, else the checkout's."""
+    for folder in TASKS_DIRS:
+        if (folder / task).is_dir():
+            return folder / task
+    return TASKS_DIRS[0] / task
+
+
 def recipe_path(task: str) -> Path:
-    """Where the recipe of ``task`` lives: ``tasks/<task>/recipe.toml``."""
-    return TASKS_DIR / task / "recipe.toml"
+    """Where the recipe of ``task`` lives: ``recipe.toml`` in its folder (``tasks/<task>/``)."""
+    return task_folder(task) / "recipe.toml"
 
 
 def load_recipe(task: str, scale: str = FULL, recipe: Union[str, Path, dict, None] = None) -> Recipe:
@@ -142,7 +157,7 @@ def read_toml(path: Path, task: str) -> dict:
     """Parse a recipe file, with an error that says how to write one when it is missing."""
     if not path.is_file():
         raise RecipeError(
-            f"no DREM recipe for {task}: {path} does not exist. Write one (copy tasks/PegInHole-v1/recipe.toml and "
+            f"no DREM recipe for {task}: {path} does not exist. Write one (copy {recipe_path('PegInHole-v1')} and "
             f"change its sections: {', '.join(SECTIONS)}; every key left out takes its default), or build with the "
             f"general defaults (the paper's sampler, 20,000 iterations at 64 px): "
             f"`drem-maniskill build-reward --task {task} --recipe {GENERAL}`")
