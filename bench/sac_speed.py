@@ -108,8 +108,8 @@ def measure(preset: str, reward: str, task: str, steps: int, warmup: int, env_st
     overrides as ``parse_variant`` reads them, or ``preset``); one table row."""
     overrides = {} if encoder == "preset" else dict(shared_encoder=encoder == "shared")
     overrides.update(parse_variant(variant))
-    config = RLConfig.preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
-                             reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp(), **overrides)
+    config = RLConfig.from_preset(preset, task=task, reward=reward, steps=warmup + steps, learning_starts=warmup,
+                                  reward_kwargs=dict(seed=0, goal_seeds=3), out=tempfile.mkdtemp(), **overrides)
     torch.set_num_threads(config.threads)
     venv, vice = make_vec_env(config)  # as train-policy builds it
     # Overlapped: the env in a child process, stepping while the gradient step runs here.
@@ -199,7 +199,7 @@ def main(argv=None) -> int:
     rows = []
     for preset in args.presets:
         # The reference: the same observation pipeline with reward_mode "none".
-        none_cfg = RLConfig.preset(preset, task=args.task, reward="sparse")
+        none_cfg = RLConfig.from_preset(preset, task=args.task, reward="sparse")
         obs_mode = "rgb" if none_cfg.uses_images else "state_dict"
         none_env = PolicyObservation(gym.make(args.task, obs_mode=obs_mode, reward_mode="none", sim_backend="cpu"),
                                      none_cfg.image_size, none_cfg.cameras, ft=True, state=none_cfg.policy_state,

@@ -13,8 +13,7 @@ from drem_maniskill.utils.cli import run_command
 def _cmd_demo(args) -> None:
     from drem_maniskill.demo import run_demo
 
-    summary = run_demo(out=args.out, tasks=args.tasks, episodes=args.episodes, seed=args.seed, scale=args.scale,
-                       drem=not args.no_drem)
+    summary = run_demo(out=args.out, tasks=args.tasks, scale=args.scale, drem=not args.no_drem)
     for task, s in summary.items():
         print(f"{task}: expert success {sum(s['success'])}/{len(s['success'])}, lengths {s['lengths']}")
         if "checkpoint" in s:
@@ -47,24 +46,12 @@ def _cmd_scripted_success(args) -> None:
     print(json.dumps(result, indent=2))
 
 
-def _sampler_flags() -> tuple:
-    """``SamplerConfig`` and the phase flags named by their flat keys."""
-    from drem_maniskill.pipeline import SamplerConfig
-    from drem_maniskill.pipeline.tree.phases import PHASES
-
-    # A phase's flat key that is not <phase>_<field> (e.g. --goal-presses) keeps its flag.
-    aliases = {f"phases.{name}.{field}": ["--" + key.replace("_", "-")]
-               for name, phase in PHASES.items() for key, field in phase.legacy.items()}
-    return SamplerConfig, aliases
-
-
 def _cmd_sample(args) -> None:
-    from drem_maniskill.pipeline import backward_sample
+    from drem_maniskill.pipeline import SamplerConfig, backward_sample
     from drem_maniskill.pipeline.dataset import tree_report
     from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
 
-    sampler_config, _ = _sampler_flags()
-    config = apply_overrides(sampler_config.preset(args.preset), overrides_from_args(args, sampler_config))
+    config = apply_overrides(SamplerConfig.preset(args.preset), overrides_from_args(args, SamplerConfig))
     print(f"sampler config: {config}")
     path = backward_sample(args.expert, args.out, config)
     print(f"progress tree: {path}")
@@ -89,8 +76,8 @@ def _cmd_train_reward(args) -> None:
 def _cmd_build_reward(args) -> None:
     from drem_maniskill.pipeline.build_reward import build_reward
 
-    result = build_reward(args.task, scale=args.scale, out=args.out, recipe=args.recipe)
-    print(json.dumps(result, indent=2, default=str) if isinstance(result, dict) else f"reward: {result}")
+    path = build_reward(args.task, scale=args.scale, out=args.out, recipe=args.recipe, publish=args.publish)
+    print(f"reward: {path}")
 
 
 def _cmd_calibrate_support(args) -> None:
@@ -101,7 +88,7 @@ def _cmd_calibrate_support(args) -> None:
 
 
 def _cmd_examine(args) -> None:
-    from drem_maniskill.pipeline.examine import examine
+    from drem_maniskill.evaluate.examine import examine
 
     result = examine(args.task, args.checkpoint, seeds=range(args.seed, args.seed + args.episodes), out_dir=args.out)
     keys = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss",
@@ -120,7 +107,7 @@ def _cmd_run_script(args) -> None:
     (run_module if args.module else run_script)(args.script, extra)
 
 
-# Flags whose name differs from their config field's, kept so existing command lines work.
+# Shorter flags for the training settings set most often, each beside its field's own flag.
 TRAIN_ALIASES = {"pairs_per_batch": ["--pairs"], "model.modalities": ["--modalities"],
                  "model.image_size": ["--image-size"]}
 TRAIN_CHOICES = {"model.modalities": ["fixed", "wrist", "ft", "poses"]}
@@ -142,13 +129,14 @@ def _presets(cls) -> dict:
 def _add_demo(sub) -> None:
     from drem_maniskill.envs import TASKS
 
-    p = sub.add_parser("demo", help="the DREM chain at a small scale on both tasks, with plots")
+    p = sub.add_parser("demo", help="build-reward at a small scale on each of our tasks, with plots of the expert demo",
+                       description="For each task: its recipe's expert demo drawn (camera strips, the wrist F/T), then "
+                                   "build-reward at the recipe's demo scale into OUT/TASK (rerun to resume), and a "
+                                   "summary.json of the demo and the examination's measures.")
     p.add_argument("--out", default="outputs/demo", help="output folder (default: %(default)s)")
     p.add_argument("--tasks", nargs="+", default=list(TASKS), help="task ids (default: all of ours, %(default)s)")
-    p.add_argument("--episodes", type=int, default=2, help="expert episodes per task (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="first episode seed (default: %(default)s)")
     p.add_argument("--scale", default="demo", choices=["demo", "tiny"], help="demo: minutes here; tiny: for CI")
-    p.add_argument("--no-drem", action="store_true", help="only record and draw the expert")
+    p.add_argument("--no-drem", action="store_true", help="only the expert demo and its plots")
     p.set_defaults(func=_cmd_demo)
 
 
@@ -195,9 +183,9 @@ def _add_examine(sub) -> None:
 
 
 def _add_sample(sub) -> None:
+    from drem_maniskill.pipeline import SamplerConfig
     from drem_maniskill.utils.config_cli import add_dataclass_args
 
-    sampler_config, aliases = _sampler_flags()
     p = sub.add_parser("sample", help="backward sampling: build the task progress tree from an expert trajectory",
                        description="Backward sampling: the task progress tree from an expert trajectory. Every flag "
                                    "but --expert, --out and --preset sets the SamplerConfig field of its name, on "
@@ -206,8 +194,8 @@ def _add_sample(sub) -> None:
     p.add_argument("--out", default="outputs/tree.h5",
                    help="dataset to write (default: %(default)s); resumes from <out>.partial")
     p.add_argument("--preset", default="paper",
-                   help=f"sampler preset, one of {', '.join(_presets(sampler_config))} (default: %(default)s)")
-    add_dataclass_args(p, sampler_config, presets=_presets(sampler_config), aliases=aliases)
+                   help=f"sampler preset, one of {', '.join(_presets(SamplerConfig))} (default: %(default)s)")
+    add_dataclass_args(p, SamplerConfig, presets=_presets(SamplerConfig))
     p.set_defaults(func=_cmd_sample)
 
 
@@ -231,18 +219,23 @@ def _add_train_reward(sub) -> None:
 
 def _add_build_reward(sub) -> None:
     p = sub.add_parser("build-reward", help="one task's DREM reward from its recipe: record, sample, train, "
-                                            "examine, calibrate; each stage resumes")
+                                            "examine, calibrate; each stage resumes",
+                       description="One task's DREM reward from its recipe, each stage resuming, the products "
+                                   "(drem.pt, quality.json, ...) under the work folder; --publish copies them into "
+                                   "the shipped rewards/<task>/.")
     p.add_argument("--task", required=True, help="env id whose recipe (tasks/<task>/recipe.toml) to run")
     p.add_argument("--scale", default="full", choices=["tiny", "demo", "full"],
                    help="tiny: a few minutes, for tests; demo: about 2 minutes a task; full: the recipe as shipped, "
                         "hours (default: %(default)s)")
-    p.add_argument("--out", help="output folder (default: the recipe's, for the scale)")
+    p.add_argument("--out", help="work folder (default: outputs/build_reward/<task>/<scale>)")
     p.add_argument("--recipe", help="recipe file instead of the task's own")
+    p.add_argument("--publish", action="store_true",
+                   help="full scale: copy the products into the shipped rewards/<task>/, naming each file replaced")
     p.set_defaults(func=_cmd_build_reward)
 
 
 def _cmd_check_reward(args) -> None:
-    from drem_maniskill.pipeline.check_reward import CheckConfig, check_reward, summary_lines
+    from drem_maniskill.evaluate.check_reward import CheckConfig, check_reward, summary_lines
     from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
 
     report = check_reward(apply_overrides(CheckConfig(), overrides_from_args(args, CheckConfig)))
@@ -251,7 +244,7 @@ def _cmd_check_reward(args) -> None:
 
 
 def _add_check_reward(sub) -> None:
-    from drem_maniskill.pipeline.check_reward import CheckConfig
+    from drem_maniskill.evaluate.check_reward import CheckConfig
     from drem_maniskill.utils.config_cli import add_dataclass_args
 
     p = sub.add_parser("check-reward", help="does a reward pay for the wrong thing? a short SAC run, then where its "
@@ -301,7 +294,7 @@ def main(argv=None) -> int:
     from drem_maniskill.envs import check_env_id  # registers the tasks
 
     def check_tasks(args) -> None:
-        # An unknown task id fails here, with the ids we know, rather than deep inside gymnasium.
+        """Refuse an unknown task id here, naming the ids we know, rather than deep inside gymnasium."""
         for task in [getattr(args, "task", None), *(getattr(args, "tasks", None) or [])]:
             if task is not None:
                 check_env_id(task)

@@ -1,26 +1,24 @@
-"""The README's main job: the whole DREM chain at a small scale, with plots, on every task of ``envs.TASKS``.
+"""The README's main job: ``build_reward`` at a small scale on every task of ``envs.TASKS``, with plots.
 
-For each task: record expert episodes with ``RecordEpisode`` (ManiSkill's .h5/.json), build a
-task progress tree by backward sampling from the first episode, train the progress model, and
-examine the learned reward with the paper's four scripted policies on held-out seeds. It writes,
-per task:
+For each task: its recipe's expert demo (the committed one, else one recorded with the recipe's ``[demo]``
+settings), drawn; then ``build_reward`` at the recipe's ``demo`` scale (sample the progress tree, train the
+progress model, examine the learned reward with the paper's four scripted policies on held-out seeds), working in
+``<out>/<task>/`` and resuming there when run again. It writes, per task:
 
-* ``<task>/reward/drem.pt``: the reward checkpoint, usable as
+* ``<task>/drem.pt``: the reward checkpoint, usable as
   ``gym.make(task, reward_mode="drem", drem_checkpoint=...)``;
-* ``<task>/examination/examination.png`` and ``quality.json``: reward against time per policy
+* ``<task>/examination.png`` and ``quality.json``: reward against time per policy
   and the model-card figures (value-order Spearman, AUROC, Random mean, contact-loss drop);
-
 * ``<task>/fixed_camera_strip.png`` and ``<task>/wrist_camera_strip.png``: frames along the
-  episode, left to right;
+  demo's first episode, left to right;
 * ``<task>/ft.png``: the wrist force/torque history at physics rate (100 Hz), one window of 8
   readings per control step, with the insertion depth beneath;
-* ``summary.json``: success and episode lengths per task.
+* ``summary.json``: the demo's success and episode lengths per task, and the examination's measures.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Sequence
 
@@ -30,11 +28,12 @@ import numpy as np
 import gymnasium as gym
 
 from drem_maniskill.envs import TASKS
-from drem_maniskill.experts import record_expert
-from drem_maniskill.pipeline import backward_sample
-from drem_maniskill.pipeline.examine import examine
+from drem_maniskill.pipeline.build_reward import build_reward, demo_stage
 from drem_maniskill.pipeline.recipe import load_recipe
-from drem_maniskill.pipeline.train_reward import train_reward
+from drem_maniskill.utils.atomic import atomic_path, write_json
+
+MEASURES = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "search_fail_contact_loss")
+CAMERAS = ("fixed_camera", "wrist_camera")
 
 
 def image_strip(frames: np.ndarray, count: int = 8) -> np.ndarray:
@@ -67,67 +66,66 @@ def plot_ft(ft: np.ndarray, depth: np.ndarray, sim_dt: float, control_dt: float,
         ax.legend(loc="upper left", ncol=3, fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=90)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def _save_png(img: np.ndarray, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    tmp = path.with_suffix(".tmp.png")
-    plt.imsave(tmp, img)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        plt.imsave(tmp, img, format="png")
 
 
-def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, episodes: int = 2, seed: int = 0,
-             scale: str = "demo", drem: bool = True) -> dict:
-    """Record expert episodes per task, draw them, and (``drem``) run the DREM chain on them.
+def draw_demo(task: str, expert: Path, folder: Path) -> dict:
+    """Draw the first episode of the demo ``expert`` into ``folder``; returns its success, lengths and plots."""
+    episodes = json.loads(expert.with_suffix(".json").read_text())["episodes"]
+    env = gym.make(task)
+    sim_dt, control_dt = env.unwrapped.sim_timestep, env.unwrapped.control_timestep
+    env.close()
+    plots = []
+    with h5py.File(expert, "r") as f:
+        obs = f["traj_0/obs"]
+        for cam in CAMERAS:
+            if f"sensor_data/{cam}/rgb" in obs:
+                plots.append(folder / f"{cam}_strip.png")
+                _save_png(image_strip(obs[f"sensor_data/{cam}/rgb"][()]), plots[-1])
+        if "extra/ft" in obs:
+            tcp = obs["extra/tcp_pose"][()]
+            # Depth from the TCP height, relative to the first step (no privileged state in rgb obs).
+            depth = np.maximum(0.0, tcp[0, 2] - tcp[:, 2])
+            plots.append(folder / "ft.png")
+            plot_ft(obs["extra/ft"][()], depth, sim_dt, control_dt, plots[-1],
+                    f"{task}: expert, seed {episodes[0]['episode_seed']}")
+    return dict(success=[bool(e["success"]) for e in episodes], lengths=[int(e["elapsed_steps"]) for e in episodes],
+                trajectory=str(expert), plots=[str(p) for p in plots])
 
-    The chain's settings are each task's recipe (``tasks/<id>/recipe.toml``) at ``scale`` (``demo``: minutes
-    per task; ``tiny``: for tests); the expert episodes are the demo's own, recorded from ``seed``.
+
+def run_demo(out: str = "outputs/demo", tasks: Sequence[str] = TASKS, scale: str = "demo", drem: bool = True) -> dict:
+    """Draw each task's expert demo and (``drem``) build its reward with ``build_reward`` at ``scale``.
+
+    The settings are each task's recipe (``tasks/<id>/recipe.toml``) at ``scale`` (``demo``: minutes per task;
+    ``tiny``: for tests); each task works in ``<out>/<task>/``.
     """
-    recipes = {task: load_recipe(task, scale) for task in tasks} if drem else {}
+    recipes = {task: load_recipe(task, scale) for task in tasks}
     root = Path(out)
     summary = {}
     for task in tasks:
         folder = root / task
-        result = record_expert(task, str(folder), seeds=range(seed, seed + episodes), obs_mode="rgb")
-        env = gym.make(task)
-        sim_dt, control_dt = env.unwrapped.sim_timestep, env.unwrapped.control_timestep
-        env.close()
-        with h5py.File(result.h5_path, "r") as f:
-            traj = f["traj_0"]
-            for cam in ("fixed_camera", "wrist_camera"):
-                _save_png(image_strip(traj[f"obs/sensor_data/{cam}/rgb"][()]), folder / f"{cam}_strip.png")
-            ft = traj["obs/extra/ft"][()]
-            tcp = traj["obs/extra/tcp_pose"][()]
-        # Depth from the TCP height, relative to the first step (no privileged state in rgb obs).
-        depth = np.maximum(0.0, tcp[0, 2] - tcp[:, 2])
-        plot_ft(ft, depth, sim_dt, control_dt, folder / "ft.png", f"{task}: expert, seed {seed}")
-        summary[task] = dict(
-            success=result.success, lengths=result.lengths, trajectory=result.h5_path,
-            plots=[str(folder / n) for n in ("fixed_camera_strip.png", "wrist_camera_strip.png", "ft.png")],
-        )
+        folder.mkdir(parents=True, exist_ok=True)
+        summary[task] = draw_demo(task, demo_stage(recipes[task], folder), folder)
         if not drem:
             continue
-        recipe = recipes[task]
-        tree = backward_sample(result.h5_path, str(folder / "tree.h5"), recipe.sampler_config(seed=seed))
-        checkpoint = train_reward(tree, str(folder / "reward"), recipe.train_config())
-        # Held-out seeds: clear of the recorded ones.
-        exam_seeds = range(seed + 1000, seed + 1000 + recipe.examine["episodes"])
-        quality = examine(task, checkpoint, seeds=exam_seeds, out_dir=str(folder / "examination"))
-        summary[task].update(
-            tree=tree, checkpoint=checkpoint,
-            quality={k: quality[k] for k in ("value_order_spearman", "final_reward_auroc", "random_mean_reward",
-                                             "search_fail_contact_loss")},
-        )
+        checkpoint = build_reward(task, scale=scale, out=folder)
+        quality = json.loads((folder / "quality.json").read_text())
         # Where the examination plot's Direct Success curve ends: a working reward pays about 1 at the goal.
         finals = [run[-1] for run in quality["curves"]["direct_success"] if len(run)]
-        summary[task]["quality"]["direct_success_final_reward"] = float(np.mean(finals)) if finals else None
-        summary[task]["plots"].append(str(folder / "examination" / "examination.png"))
-    tmp = root / ".summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    os.replace(tmp, root / "summary.json")
+        summary[task].update(
+            tree=str(folder / "tree.h5"), checkpoint=str(checkpoint),
+            quality={**{k: quality[k] for k in MEASURES},
+                     "direct_success_final_reward": float(np.mean(finals)) if finals else None},
+        )
+        summary[task]["plots"].append(str(folder / "examination.png"))
+    write_json(root / "summary.json", summary)
     return summary

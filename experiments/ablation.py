@@ -120,7 +120,7 @@ def sac_configs(jobs, scale: str, out: str, seeds, steps: int) -> list:
         checkpoint = Path(out) / scale / task / variant / "drem.pt"
         for seed in seeds:
             run = Path(out) / scale / "sac" / task / variant / f"seed{seed}"
-            configs.append(apply_overrides(RLConfig.preset("state"), dict(
+            configs.append(apply_overrides(RLConfig.from_preset("state"), dict(
                 task=task, reward="drem", seed=int(seed), steps=int(steps), out=str(run),
                 reward_checkpoint=str(checkpoint), train_bf16=False, overlap_env=False)))
     return configs
@@ -148,7 +148,8 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=50_000)
     p.add_argument("--out", default="outputs/ablation")
     args = p.parse_args()
-    jobs = [(t, v) for v in ORDER for t in args.tasks if v in variants_of(t, args.variants)]
+    # In the order given: the runs of the first variants named start first.
+    jobs = [(t, v) for v in dict.fromkeys(args.variants) for t in args.tasks if v in variants_of(t, [v])]
     # spawn: the parent has SAPIEN and torch loaded, which a forked child must not share.
     with ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn")) as pool:
         for result in pool.map(build, *zip(*[(t, v, args.scale, args.out) for t, v in jobs])):

@@ -25,6 +25,18 @@ def test_help_of_every_subcommand():
         assert "usage: drem-maniskill " + cmd in run(cmd, "--help")
 
 
+def test_the_rl_commands_are_subcommands_of_the_one_command_line():
+    import runpy
+
+    import drem_maniskill.rl
+    from drem_maniskill.cli import build_parser
+
+    commands = next(a for a in build_parser()._actions if a.dest == "command").choices
+    assert {"train-policy", "sweep", "compare"} <= set(commands)
+    with pytest.raises(SystemExit, match="drem-maniskill train-policy"):  # python -m drem_maniskill.rl
+        runpy.run_path(str(Path(drem_maniskill.rl.__file__).parent / "__main__.py"), run_name="__main__")
+
+
 def _options(command: str) -> set:
     """The option strings of one subcommand of ``drem-maniskill``."""
     from drem_maniskill.cli import build_parser
@@ -66,8 +78,6 @@ def test_every_config_field_has_a_flag():
         for name, phase in PHASES.items():
             for f in dataclasses.fields(phase.config):
                 assert f"--{name}-{f.name}".replace("_", "-") in sample
-                # and the flat key of the setting (older command lines and headers), e.g. --goal-presses
-                assert "--" + phase.flat_key(f.name).replace("_", "-") in sample
     missing = _flags_of(TrainConfig) - _options("train-reward")
     assert not missing, f"train-reward lacks {sorted(missing)}"
     missing = _flags_of(RLConfig) - _options("train-policy")
@@ -96,7 +106,7 @@ def test_sample_flags_reach_the_sampler_config(monkeypatch, capsys):
 
     calls = _captured(monkeypatch, "drem_maniskill.pipeline", "backward_sample")
     argv = ["sample", "--expert", "x.h5", "--preset", "tiny", "--num-children", "7", "--no-randomize-colors",
-            "--face-depth", "3", "--goal-presses", "11", "--phase", "turn.tilt=5", "--phase", "face.step=0.002",
+            "--face-depth", "3", "--goal-presses-count", "11", "--phase", "turn.tilt=5", "--phase", "face.step=0.002",
             "--turn-depth", "2"]
     assert main(argv) == 2 and "captured" in capsys.readouterr().err
     config = calls[0][0][2]
@@ -122,7 +132,7 @@ def test_train_reward_flags_reach_the_train_config(monkeypatch, capsys):
 
 
 def test_train_policy_flags_reach_the_rl_config(monkeypatch, capsys):
-    from drem_maniskill.rl.__main__ import main
+    from drem_maniskill.cli import main
 
     calls = _captured(monkeypatch, "drem_maniskill.rl.train_policy", "train_policy")
     argv = ["train-policy", "--preset", "state", "--steps", "8", "--net-arch", "64", "64", "--obs-norm",
@@ -172,8 +182,10 @@ def test_build_reward_calls_the_pipeline(monkeypatch, capsys, tmp_path):
     fake.build_reward = lambda task, **kwargs: calls.append((task, kwargs)) or tmp_path / "drem.pt"
     monkeypatch.setitem(sys.modules, "drem_maniskill.pipeline.build_reward", fake)
     assert main(["build-reward", "--task", "PegInHole-v1", "--scale", "tiny", "--out", str(tmp_path)]) == 0
-    assert calls == [("PegInHole-v1", dict(scale="tiny", out=str(tmp_path), recipe=None))]
+    assert calls == [("PegInHole-v1", dict(scale="tiny", out=str(tmp_path), recipe=None, publish=False))]
     assert f"reward: {tmp_path / 'drem.pt'}" in capsys.readouterr().out
+    assert main(["build-reward", "--task", "PegInHole-v1", "--publish"]) == 0
+    assert calls[1] == ("PegInHole-v1", dict(scale="full", out=None, recipe=None, publish=True))
 
 
 def test_a_missing_checkpoint_error_names_the_fix(tmp_path):
@@ -210,7 +222,7 @@ def test_chain_record_sample_train_examine(tmp_path):
     assert quality["success_rate"]["direct_success"] == 1.0
     assert -1 <= quality["spearman_with_normalized_dense"] <= 1 and -1 <= quality["spearman_with_insertion_depth"] <= 1
     assert len(quality["dense_curves"]["random"][0]) == len(quality["curves"]["random"][0])
-    from drem_maniskill.pipeline.examine import (
+    from drem_maniskill.evaluate.probes import (
         FACE_PUSHED, HOLD_POSITIONS, SIDE_POSITION, SIDE_PUSHED, TURNED_HOVER, UPRIGHT_HOVER,
     )
 
@@ -243,7 +255,7 @@ def test_chain_record_sample_train_examine(tmp_path):
 
 @pytest.mark.slow
 def test_demo_writes_its_plots(tmp_path):
-    out = run("demo", "--out", str(tmp_path / "demo"), "--tasks", "PegInHole-v1", "--episodes", "1", "--scale", "tiny")
+    out = run("demo", "--out", str(tmp_path / "demo"), "--tasks", "PegInHole-v1", "--scale", "tiny")
     assert "reward checkpoint:" in out
     summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
     for plot in summary["PegInHole-v1"]["plots"]:
@@ -270,7 +282,7 @@ def test_an_unknown_task_id_is_one_error_line_listing_the_ids(argv, capsys, tmp_
 
 
 def test_a_misspelt_task_id_gets_a_suggestion(capsys):
-    from drem_maniskill.rl.__main__ import main
+    from drem_maniskill.cli import main
 
     assert main(["train-policy", "--task", "PegInHoel-v1"]) == 2
     assert "Did you mean PegInHole-v1" in capsys.readouterr().err

@@ -5,7 +5,8 @@ Checked over README.md, docs/*.md, tasks/README.md and rewards/*/MODEL_CARD.md: 
 (``docs/...``, ``rewards/...``, ``tasks/...``, ``drem_maniskill/...``, ``tests/...``, ``scripts/...``,
 ``bench/...``; paths with ``<``, ``*``, ``{`` or ``$`` are patterns and skipped) resolves; every picture
 under docs/images is shown by some page and stored once; the model cards' measure tables are
-what ``scripts/quality_tables.py`` prints for their own ``quality*.json``.
+what ``scripts/quality_tables.py`` prints for their own ``quality*.json``; the README's headline tables are
+the shipped checkpoints' ``quality*.json`` and ``check_reward*.json`` and the SAC comparisons' ``comparison.json``.
 
 Runnable code samples: a ```python block right after a line ``<!-- runnable -->`` is run, each in
 its own Python process from the repository root, and must exit 0. Mark only samples that are
@@ -87,11 +88,10 @@ def test_result_pictures_are_stored_once():
 
 
 def _quality_tables():
-    """``scripts/quality_tables.py`` as a module: the one writer of the model cards' measure tables."""
-    spec = importlib.util.spec_from_file_location("quality_tables", ROOT / "scripts" / "quality_tables.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """``drem_maniskill.evaluate.targets``: the one writer of the model cards' measure tables."""
+    from drem_maniskill.evaluate import targets
+
+    return targets
 
 
 def _section(text: str, heading: str) -> str:
@@ -200,7 +200,7 @@ REPORTS = sorted((ROOT / "rewards").glob("*/check_reward*.json"))
 @pytest.mark.parametrize("report", REPORTS, ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_each_exploit_check_report_beside_a_model_card_is_shown_in_it(report):
     # The card's table is the report's, so a rerun check that changes a number must change the card too.
-    from drem_maniskill.pipeline.check_reward import markdown_table
+    from drem_maniskill.evaluate.check_reward import markdown_table
 
     card = (report.parent / "MODEL_CARD.md").read_text()
     assert markdown_table(json.loads(report.read_text())) in card, report
@@ -213,3 +213,39 @@ def test_the_scene_swap_row_is_printed_where_the_examination_measured_it():
     assert "reads the robot" not in qt.tables(q)
     row = [r for r in qt.tables({**q, "robot_only_over_expert": 0.998}).split("\n") if "reads the robot" in r]
     assert len(row) == 1 and "| 0.998 | well below 1 |" in row[0]
+
+
+def _readme_row(first_cell: str) -> list:
+    """The cells of the README table row whose first cell is ``first_cell``."""
+    for line in (ROOT / "README.md").read_text().split("\n"):
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("|") and cells[0] == first_cell:
+            return cells
+    raise AssertionError(f"README.md has no table row for {first_cell}")
+
+
+@pytest.mark.parametrize("quality", sorted((ROOT / "rewards").glob("*/quality*.json")),
+                         ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_the_readme_shows_each_shipped_checkpoints_examination_and_exploit_check(quality):
+    # The headline table is the files': a checkpoint re-examined or re-checked must change the README too.
+    q = json.loads(quality.read_text())
+    name = "drem_image.pt" if quality.stem.endswith("_image") else "drem.pt"
+    cells = _readme_row(f"`{quality.parent.name}/{name}`")
+    assert cells[2:4] == [f"{q['value_order_spearman']:.3f}", f"{q['final_reward_auroc']:.3f}"], cells
+    report = quality.parent / quality.name.replace("quality", "check_reward")
+    if report.exists():
+        exploit = json.loads(report.read_text())["verdict"]["exploit"]
+        assert cells[4].startswith("**exploit**" if exploit else "no exploit found"), cells
+
+
+@pytest.mark.parametrize("reward", ["drem", "drem-image", "engineered", "vice", "sparse"])
+def test_the_readme_shows_the_sac_comparisons_success_at_50k(reward):
+    want = []
+    for preset in ("state", "image"):
+        for task in ("PegInHole-v1", "USBInsertion-v1"):
+            table = json.loads((ROOT / "docs/results" / f"comparison_{preset}" / task / "comparison.json").read_text())
+            row = next(r for r in table["rows"] if r["reward"].split(",")[0] == reward)
+            assert row["final_steps"] == 50_000 and row["seeds"] == 3, row
+            want.append(f"{round(100 * row['final_success'])} %")
+    assert _readme_row(reward)[1:] == want
+

@@ -74,7 +74,7 @@ def test_adding_a_task(new_task, tmp_path, monkeypatch):
     finally:
         env.close()
     assert all(spec.supports(NEW_TASK) for spec in REWARDS.values())
-    env, _ = make_env(RLConfig.preset("light", task=NEW_TASK, reward="drem"), for_eval=True)
+    env, _ = make_env(RLConfig.from_preset("light", task=NEW_TASK, reward="drem"), for_eval=True)
     try:
         obs, _ = env.reset(seed=1)
         assert set(obs) == {"fixed_camera", "wrist_camera", "ft", "state"}
@@ -86,7 +86,7 @@ def test_adding_a_reward(monkeypatch):
     spec = RewardSpec("the task's staged dense reward, 0-6", env_reward_mode("dense"))
     monkeypatch.setitem(REWARDS, "dense-raw", spec)
     assert reward_spec("dense-raw").supports("PegInHole-v1") and not reward_spec("dense-raw").supports("PlugCharger-v1")
-    env, learned = make_env(RLConfig.preset("light", task="PegInHole-v1", reward="dense-raw"), for_eval=True)
+    env, learned = make_env(RLConfig.from_preset("light", task="PegInHole-v1", reward="dense-raw"), for_eval=True)
     try:
         assert learned is None and env.unwrapped.reward_mode == "dense"
         obs, _ = env.reset(seed=2)
@@ -115,9 +115,9 @@ def test_adding_an_algorithm(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="unknown algorithm 'td3'; choose one of: sac"):
         algo_spec("td3")
     monkeypatch.setitem(ALGOS, "td3", AlgoSpec(TD3, build_td3))
-    config = RLConfig.preset("light", task="PegInHole-v1", reward="sparse", algo="td3", steps=24, learning_starts=8,
-                             batch_size=8, eval_every=12, eval_episodes=1, threads=1, out=str(tmp_path / "run"),
-                             env_kwargs=dict(max_episode_steps=6))
+    config = RLConfig.from_preset("light", task="PegInHole-v1", reward="sparse", algo="td3", steps=24,
+                                  learning_starts=8, batch_size=8, eval_every=12, eval_episodes=1, threads=1,
+                                  out=str(tmp_path / "run"), env_kwargs=dict(max_episode_steps=6))
     # TD3 cannot defer its gradient step into the env's (no train_while_env_steps): its env stays in this process.
     assert config.overlap_env and not config.overlap_env_used
     result = train_policy(config)

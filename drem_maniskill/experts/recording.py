@@ -7,8 +7,6 @@ The files are what ManiSkill's ``RecordEpisode`` writes: ``<name>.h5`` (per epis
 
 from __future__ import annotations
 
-import json
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional, Sequence
@@ -22,6 +20,7 @@ from drem_maniskill.envs import InsertionEnv
 from drem_maniskill.experts.policies import get_policy
 from drem_maniskill.experts.scripted import ExpertPolicy
 from drem_maniskill.experts.rollout import rollout
+from drem_maniskill.utils.atomic import write_json
 from drem_maniskill.utils.episodes import episode_horizon
 from drem_maniskill.utils.progress import progress_bar
 
@@ -95,9 +94,5 @@ def record_expert(
             result.lengths.append(ep.length)
     finally:
         env.close()
-    summary = {k: v for k, v in asdict(result).items()}
-    summary["success_rate"] = result.success_rate
-    tmp = out / f".{name}.summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    os.replace(tmp, out / f"{name}.summary.json")
+    write_json(out / f"{name}.summary.json", {**asdict(result), "success_rate": result.success_rate})
     return result

@@ -1,8 +1,8 @@
-"""One command per reward: a task's recipe (``tasks/<id>/recipe.toml``) run from the demo to ``rewards/<id>/``.
+"""One command per reward: a task's recipe (``tasks/<id>/recipe.toml``) run from the demo to a reward folder.
 
-``build_reward`` runs the stages in order, each writing one output under the work folder and skipping
-when that output exists (the sampler and the training also resume their own partial files), so an
-interrupted build is finished by running the same command again:
+``build_reward`` runs the stages of ``STAGES`` in order, each writing one output under the work folder and skipping
+when that output exists (the sampler and the training also resume their own partial files), so an interrupted build
+is finished by running the same command again:
 
 1. demo: the committed demo the recipe names, else ``record-expert`` -> ``expert/expert.h5``;
 2. sample: backward sampling -> ``tree.h5`` (and ``tree_<k>.h5`` from the demo's episode ``k`` where ``[demo] trees``
@@ -12,25 +12,62 @@ interrupted build is finished by running the same command again:
    negatives -> ``rounds/drem.pt`` (``rounds/round_<k>/``); examine the last -> ``examination/``;
 4. the image-only twin, where the recipe asks for it -> ``reward_image/``, ``examination_image/``;
 5. calibrate: the support guard's thresholds -> ``support.json``;
-6. publish: the products copied under the names ``rewards/<id>/`` uses (``drem.pt``, ``quality.json``, ...).
+6. the products copied to the work folder's top under the names ``rewards/<id>/`` uses (``drem.pt``,
+   ``quality.json``, ...); with ``publish``, into the shipped ``rewards/<id>/`` too, naming each file replaced.
 """
 
 from __future__ import annotations
 
-import copy
 import filecmp
 import json
-import shutil
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional, Union
 
 from drem_maniskill.drem.checkpoint import REWARDS_DIRS
 from drem_maniskill.pipeline.recipe import FULL, SECTION_DEFAULTS, Recipe, RecipeError, load_recipe
+from drem_maniskill.utils.atomic import atomic_path, copy_file, write_json
 
 DEFAULT_OUT = Path("outputs") / "build_reward"
-# Work-folder file -> its name in the published reward folder (as in rewards/<id>/).
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a build: the file it writes, the recipe sections it reads, and the stages whose outputs it reads."""
+
+    name: str
+    output: str
+    """Its file under the work folder; ``<k>``: one per demo episode."""
+    sections: tuple
+    reads: tuple = ()
+
+    def path(self, work: Path, k: int = 0) -> Path:
+        """Its output in the work folder ``work`` (for demo episode ``k``)."""
+        return work / self.output.replace("<k>", str(k))
+
+    def made(self) -> tuple:
+        """What a rebuild deletes: its output's entry at the work folder's top, with a sampled tree's resume file."""
+        top = self.output.split("/")[0]
+        return (top, f"{top}.partial") if top.endswith(".h5") else (top,)
+
+
+STAGES = {s.name: s for s in (
+    Stage("demo", "expert/expert.h5", ("demo",)),
+    Stage("sample", "tree.h5", ("demo", "sampler"), ("demo",)),
+    Stage("sample_episodes", "tree_<k>.h5", ("demo", "sampler"), ("demo",)),
+    Stage("scene_swap", "scene_swap/negatives_<k>.h5", ("demo", "scene_swap"), ("demo",)),
+    Stage("train", "reward/drem.pt", ("train",), ("sample", "sample_episodes", "scene_swap")),
+    Stage("rounds", "rounds/drem.pt", ("train", "rounds"), ("sample", "sample_episodes", "scene_swap", "train")),
+    Stage("examine", "examination/quality.json", ("examine",), ("train", "rounds")),
+    Stage("train_image", "reward_image/drem.pt", ("train", "image_twin"), ("sample", "sample_episodes", "scene_swap")),
+    Stage("rounds_image", "rounds_image/drem.pt", ("train", "rounds"),
+          ("sample", "sample_episodes", "scene_swap", "train_image")),
+    Stage("examine_image", "examination_image/quality.json", ("examine",), ("train_image", "rounds_image")),
+    Stage("calibrate", "support.json", ("calibrate",), ("sample", "train", "rounds")),
+)}
+# Work-folder file -> its name in a reward folder (as in rewards/<id>/); a stage's output, or a file beside it.
 PUBLISHED = {
     "reward/drem.pt": "drem.pt",
     "examination/quality.json": "quality.json",
@@ -42,51 +79,57 @@ PUBLISHED = {
 }
 # The policy rounds' checkpoints, published in place of the paper's where a recipe runs them.
 ROUNDS_PUBLISHED = {"reward/drem.pt": "rounds/drem.pt", "reward_image/drem.pt": "rounds_image/drem.pt"}
-_TRAINED = ("reward", "rounds", "examination", "reward_image", "rounds_image", "examination_image", "support.json")
-# Recipe section -> the work-folder outputs made from it (the stages after it read those outputs).
-MADE_FROM = {
-    "demo": ("expert", "tree.h5", "tree_<k>.h5", "tree.h5.partial", "scene_swap", *_TRAINED),
-    "sampler": ("tree.h5", "tree_<k>.h5", "tree.h5.partial", *_TRAINED),
-    "scene_swap": ("scene_swap", *_TRAINED),
-    "train": _TRAINED,
-    "rounds": ("rounds", "rounds_image", "examination", "examination_image", "support.json"),
-    "image_twin": ("reward_image", "examination_image"),
-    "examine": ("examination", "examination_image"),
-    "calibrate": ("support.json",),
-}
 # Settings of the machine, not of the reward: a build may resume with other values.
 MACHINE_FIELDS = {"sampler": ("workers",), "train": ("threads", "device")}
 
 
-def build_reward(task: str, scale: str = FULL, out: Optional[Union[str, Path]] = None,
-                 recipe: Union[str, Path, dict, None] = None) -> Path:
-    """Make ``task``'s reward from its recipe at ``scale``; returns the published ``drem.pt``.
+def stale_outputs(section: str) -> list:
+    """The work-folder entries a change to recipe ``section`` makes stale: the outputs of the stages that read it, and
+    of every stage reading theirs (a key no stage declares, such as the scale: every output)."""
+    stale = {name for name, s in STAGES.items() if section in s.sections} or set(STAGES)
+    grew = True
+    while grew:
+        more = {name for name, s in STAGES.items() if stale & set(s.reads)} - stale
+        stale |= more
+        grew = bool(more)
+    return sorted(entry for name in stale for entry in STAGES[name].made())
 
-    The stages work under ``out`` (default ``outputs/build_reward/<task>/<scale>``) and publish there; at
-    the ``full`` scale without ``out`` they publish into the package's ``rewards/<task>/``.
-    ``recipe``: a recipe file, ``"default"`` (the general defaults) or None (``tasks/<task>/recipe.toml``).
+
+def build_reward(task: str, scale: str = FULL, out: Optional[Union[str, Path]] = None,
+                 recipe: Union[str, Path, dict, None] = None, publish: bool = False) -> Path:
+    """Make ``task``'s reward from its recipe at ``scale`` in the work folder ``out``; returns its ``drem.pt``.
+
+    ``out`` defaults to ``outputs/build_reward/<task>/<scale>``; the products are copied to its top under their
+    published names. ``publish`` (the full scale only) copies them into the shipped ``rewards/<task>/`` too, and
+    returns the shipped ``drem.pt``. ``recipe``: a recipe file, ``"default"`` (the general defaults) or None
+    (``tasks/<task>/recipe.toml``).
     """
+    if publish and scale != FULL:
+        raise RecipeError(f"only a full-scale build publishes into rewards/{task}/ (the shipped reward is the recipe "
+                          f"as written); this build is at scale {scale!r}: drop publish, or build at {FULL!r}")
     r = load_recipe(task, scale, recipe)
     work = Path(out) if out is not None else DEFAULT_OUT / task / scale
-    dest = REWARDS_DIRS[0] / task if out is None and scale == FULL else work
     work.mkdir(parents=True, exist_ok=True)
     check_same_recipe(work / "recipe.json", r)
     _log(task, f"recipe {r.source}, scale {scale}; working in {work}")
     expert = demo_stage(r, work)
-    tree = stage(task, "sample", work / "tree.h5", lambda p: _sample(str(expert), str(p), r))
-    trees = [stage(task, f"sample episode {k}", work / f"tree_{k}.h5",
+    tree = stage(task, "sample", STAGES["sample"].path(work), lambda p: _sample(str(expert), str(p), r))
+    trees = [stage(task, f"sample episode {k}", STAGES["sample_episodes"].path(work, k),
                    lambda p, k=k: _sample(str(expert), str(p), r, episode=k)) for k in range(1, r.demo["trees"])]
     negatives = []
     if r.scene_swap["negatives"]:
-        negatives = [stage(task, f"scene-swap negatives {k}", work / "scene_swap" / f"negatives_{k}.h5",
+        negatives = [stage(task, f"scene-swap negatives {k}", STAGES["scene_swap"].path(work, k),
                            lambda p, k=k: _swap_negatives(str(expert), p, r, k)) for k in range(r.demo["trees"])]
     checkpoint = model_stages(r, tree, work, "", r.train["model"].get("modalities"), trees, negatives)
     if r.image_twin["enabled"]:
         model_stages(r, tree, work, "_image", r.image_twin["modalities"], trees, negatives)
     if r.calibrate["enabled"]:
-        stage(task, "calibrate", work / "support.json", lambda p: _calibrate(checkpoint, tree, p, r))
-    publish(task, work, dest)
-    return dest / "drem.pt"
+        stage(task, "calibrate", STAGES["calibrate"].path(work), lambda p: _calibrate(checkpoint, tree, p, r))
+    copy_products(task, work, work)
+    if publish:
+        copy_products(task, work, REWARDS_DIRS[0] / task)
+        return REWARDS_DIRS[0] / task / "drem.pt"
+    return work / "drem.pt"
 
 
 def _sample(expert: str, out: str, r: Recipe, episode: int = 0) -> str:
@@ -108,6 +151,19 @@ def _calibrate(checkpoint: Path, tree: Path, out: Path, r: Recipe) -> None:
     calibrate_support(str(checkpoint), str(tree), str(out), **({"quantile": quantile} if quantile is not None else {}))
 
 
+def _train(tree: Path, out: Path, config, trees=(), negatives=()) -> None:
+    from drem_maniskill.pipeline.train_reward import train_reward
+
+    train_reward(str(tree), str(out.parent), config, trees=[str(t) for t in trees],
+                 negatives=[str(n) for n in negatives])
+
+
+def _examine(task: str, checkpoint: Path, out: Path, r: Recipe) -> None:
+    from drem_maniskill.evaluate.examine import examine
+
+    examine(task, str(checkpoint), seeds=r.exam_seeds(), out_dir=str(out.parent))
+
+
 def demo_stage(r: Recipe, work: Path) -> Path:
     """The expert demo: the committed one the recipe names, else one recorded with its settings (once)."""
     committed = r.expert_file()
@@ -119,14 +175,17 @@ def demo_stage(r: Recipe, work: Path) -> Path:
         _log(r.task, f"demo: {committed} is missing; recording one with the recipe's [demo] settings")
 
     def record(path: Path) -> None:
+        """Record the demo's episodes into ``path``'s folder."""
         from drem_maniskill.experts import record_expert
 
         d = r.demo
-        record_expert(r.task, str(path.parent), seeds=range(d["seed"], d["seed"] + d["episodes"]),
-                      name=path.stem, env_kwargs=dict(d["env_kwargs"]), descent_step=d["descent_step"],
-                      descend_from=d["descend_from"])
+        # RecordEpisode writes its files in place: the folder appears whole, so a stopped recording is redone.
+        with atomic_path(path.parent, directory=True) as folder:
+            record_expert(r.task, str(folder), seeds=range(d["seed"], d["seed"] + d["episodes"]), name=path.stem,
+                          env_kwargs=dict(d["env_kwargs"]), descent_step=d["descent_step"],
+                          descend_from=d["descend_from"])
 
-    return stage(r.task, "demo", work / "expert" / "expert.h5", record)
+    return stage(r.task, "demo", STAGES["demo"].path(work), record)
 
 
 def check_demo_task(h5: Path, task: str) -> None:
@@ -144,31 +203,26 @@ def model_stages(r: Recipe, tree: Path, work: Path, suffix: str, modalities, tre
     """Train a reward on ``tree``, ``trees`` and the negatives files ``negatives`` (``modalities``; None: all the tree
     holds) and examine it; returns its checkpoint."""
     from drem_maniskill.pipeline.dataset import dataset_modalities
-    from drem_maniskill.pipeline.examine import examine
-    from drem_maniskill.pipeline.train_reward import train_reward
 
     config = r.train_config(modalities=modalities or dataset_modalities(str(tree)))
-    checkpoint = stage(r.task, f"train{suffix}", work / f"reward{suffix}" / "drem.pt",
-                       lambda p: train_reward(str(tree), str(p.parent), config, trees=[str(t) for t in trees],
-                                              negatives=[str(n) for n in negatives]))
+    checkpoint = stage(r.task, f"train{suffix}", STAGES[f"train{suffix}"].path(work),
+                       lambda p: _train(tree, p, config, trees, negatives))
     rounds = r.rounds_config()
     if rounds.rounds > 0:
-        checkpoint = stage(r.task, f"rounds{suffix}", work / f"rounds{suffix}" / "drem.pt",
+        checkpoint = stage(r.task, f"rounds{suffix}", STAGES[f"rounds{suffix}"].path(work),
                            lambda p: _rounds(r.task, tree, checkpoint, config, rounds, p, trees, negatives))
-    stage(r.task, f"examine{suffix}", work / f"examination{suffix}" / "quality.json",
-          lambda p: examine(r.task, str(checkpoint), seeds=r.exam_seeds(), out_dir=str(p.parent)))
+    stage(r.task, f"examine{suffix}", STAGES[f"examine{suffix}"].path(work),
+          lambda p: _examine(r.task, checkpoint, p, r))
     return checkpoint
 
 
 def _rounds(task: str, tree: Path, checkpoint: Path, config, rounds, out: Path, trees=(), negatives=()) -> None:
-    """The policy rounds from ``checkpoint``; their last checkpoint copied to ``out`` (atomically)."""
+    """The policy rounds from ``checkpoint``; their last checkpoint copied to ``out``."""
     from drem_maniskill.pipeline.policy_rounds import run_rounds
 
     last = run_rounds(task, str(tree), checkpoint, config, rounds, out.parent, [str(t) for t in trees],
                       [str(n) for n in negatives])
-    tmp = out.with_name(out.name + ".tmp")
-    shutil.copyfile(last, tmp)
-    tmp.replace(out)
+    copy_file(last, out)
 
 
 def stage(task: str, name: str, output: Path, run: Callable[[Path], object]) -> Path:
@@ -186,8 +240,8 @@ def stage(task: str, name: str, output: Path, run: Callable[[Path], object]) -> 
     return output
 
 
-def publish(task: str, work: Path, dest: Path) -> None:
-    """Copy the products to ``dest`` under their published names (files already there and equal are left)."""
+def copy_products(task: str, work: Path, dest: Path) -> None:
+    """Copy the products to ``dest`` under their published names, saying of each file there whether it changed."""
     dest.mkdir(parents=True, exist_ok=True)
     for src_name, dest_name in PUBLISHED.items():
         src, target = work / src_name, dest / dest_name
@@ -195,13 +249,14 @@ def publish(task: str, work: Path, dest: Path) -> None:
             src = work / ROUNDS_PUBLISHED[src_name]
         if not src.is_file() or src.resolve() == target.resolve():
             continue
-        if target.is_file() and filecmp.cmp(src, target, shallow=False):
-            _log(task, f"publish: skipped, {target} is up to date")
-            continue
-        tmp = target.with_name(target.name + ".tmp")
-        shutil.copyfile(src, tmp)
-        tmp.replace(target)
-        _log(task, f"publish: {target}")
+        if not target.is_file():
+            copy_file(src, target)
+            _log(task, f"publish: {target} (new)")
+        elif filecmp.cmp(src, target, shallow=False):
+            _log(task, f"publish: {target} unchanged")
+        else:
+            copy_file(src, target)
+            _log(task, f"publish: {target} replaced (changed)")
 
 
 def check_same_recipe(path: Path, r: Recipe) -> None:
@@ -211,20 +266,19 @@ def check_same_recipe(path: Path, r: Recipe) -> None:
         before = json.loads(path.read_text())
         changed = sorted(k for k in set(before) | set(current) if _outcome(before, k) != _outcome(current, k))
         if changed:
-            stale = sorted({name for section in changed for name in MADE_FROM.get(section, MADE_FROM["demo"])})
+            stale = sorted({entry for section in changed for entry in stale_outputs(section)})
             raise RecipeError(
                 f"{path.parent} holds outputs of another recipe (it differs in {', '.join(changed)}); delete what "
                 f"those settings made ({', '.join(stale)}, and recipe.json) to rebuild them, or build elsewhere (out=)")
         return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(current, indent=2) + "\n")
+    write_json(path, current)
 
 
 def _outcome(recipe: dict, section: str):
     """A recipe section without the settings that change how fast a stage runs, not what it makes."""
     value = recipe.get(section)
     if value is None:  # a section the recorded recipe predates took its defaults
-        value = copy.deepcopy(SECTION_DEFAULTS.get(section, {}))
+        value = SECTION_DEFAULTS.get(section, {})
     if section in MACHINE_FIELDS and isinstance(value, dict):
         return {k: v for k, v in value.items() if k not in MACHINE_FIELDS[section]}
     return value

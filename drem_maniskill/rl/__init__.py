@@ -1,6 +1,6 @@
 """SAC policy learning with DREM and the baseline rewards (the paper's Section IV-D); see docs/rl.md.
 
-* ``train_policy(RLConfig.preset("light", task=..., reward=..., seed=...))`` trains or resumes a run;
+* ``train_policy(RLConfig.from_preset("light", task=..., reward=..., seed=...))`` trains or resumes a run;
 * ``REWARDS`` (``rl.rewards``) maps reward names to how their env is built, one entry per reward;
 * ``ALGOS`` (``rl.algos``) maps algorithm names to how they are built, saved and loaded (SAC);
 * ``compare_runs(run_dirs, out)`` draws success against env steps per task and reward.

@@ -1,12 +1,12 @@
-"""``python -m drem_maniskill.rl train-policy|sweep|compare``: the commands of docs/rl.md over this package."""
+"""The reinforcement-learning subcommands of ``drem-maniskill``: ``train-policy``, ``sweep``, ``compare`` (docs/rl.md).
+
+``drem_maniskill.cli.build_parser`` adds them to the one command line with ``add_subcommands``.
+"""
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
-
-from drem_maniskill.utils.cli import run_command
 
 
 def _cmd_train_policy(args) -> None:
@@ -17,7 +17,7 @@ def _cmd_train_policy(args) -> None:
     from drem_maniskill.rl.train_policy import train_policy
     from drem_maniskill.utils.config_cli import apply_overrides, overrides_from_args
 
-    config = apply_overrides(RLConfig.preset(args.preset), overrides_from_args(args, RLConfig, skip=RL_SKIP))
+    config = apply_overrides(RLConfig.from_preset(args.preset), overrides_from_args(args, RLConfig, skip=RL_SKIP))
     # The clear errors before anything heavy loads.
     check_env_id(config.task)
     reward_spec(config.reward)
@@ -73,7 +73,7 @@ def add_subcommands(sub) -> None:
                         "this CPU; image: the paper's inputs on this CPU (32 px, F/T for drem only); paper: the "
                         "paper's inputs at 128 px, GPU (default: %(default)s)")
     add_dataclass_args(p, RLConfig, skip=RL_SKIP, aliases=RL_ALIASES, choices=_rl_choices(),
-                       presets={name: RLConfig.preset(name) for name in PRESETS})
+                       presets={name: RLConfig.from_preset(name) for name in PRESETS})
     p.set_defaults(func=_cmd_train_policy)
     _add_sweep(sub)
     p = sub.add_parser("compare", help="success against env steps per task and reward, with a table")
@@ -111,21 +111,10 @@ def _add_sweep(sub) -> None:
                    help="reruns of a trial whose worker died or whose env process was lost; each resumes from "
                         "its checkpoint (default: %(default)s)")
     add_dataclass_args(p, RLConfig, skip=SWEEP_FIELDS, aliases=RL_ALIASES, choices=_rl_choices(),
-                       presets={name: RLConfig.preset(name) for name in PRESETS})
+                       presets={name: RLConfig.from_preset(name) for name in PRESETS})
     p.set_defaults(func=_cmd_sweep)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Parser of ``python -m drem_maniskill.rl``."""
-    parser = argparse.ArgumentParser(prog="python -m drem_maniskill.rl", description=__doc__)
-    add_subcommands(parser.add_subparsers(dest="command", required=True))
-    return parser
-
-
-def main(argv=None) -> int:
-    """Entry point."""
-    return run_command("python -m drem_maniskill.rl", build_parser().parse_args(argv))
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit("train-policy, sweep and compare are subcommands of the one command line: "
+             "drem-maniskill train-policy|sweep|compare ... (drem-maniskill --help)")

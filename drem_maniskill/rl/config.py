@@ -1,4 +1,4 @@
-"""Configuration of a SAC run (``train-policy``): one dataclass, three presets, saved as JSON in the run dir."""
+"""Configuration of a SAC run (``train-policy``): one dataclass, four presets, saved as JSON in the run dir."""
 
 from __future__ import annotations
 
@@ -20,15 +20,15 @@ def native_bf16() -> bool:
     """Whether this CPU computes bfloat16 matrix products in hardware (AVX512-BF16 or AMX)."""
     import torch
 
-    # Without them torch emulates bfloat16: the state preset's gradient step took 300 ms instead of 41 ms
-    # in float32 on an AVX2-only CPU (docs/rl.md, "Speed"). torch.cpu names these checks with an underscore.
+    # Without them torch emulates bfloat16, many times slower than float32 (docs/rl.md, "Speed").
+    # torch.cpu names these checks with an underscore.
     checks = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
     return any(getattr(torch.cpu, name, lambda: False)() for name in checks)
 
 
 @dataclass
 class RLConfig:
-    """Everything a run needs; ``RLConfig.preset(name, **overrides)`` is the usual way to make one."""
+    """Everything a run needs; ``RLConfig.from_preset(name, **overrides)`` is the usual way to make one."""
 
     task: str = "PegInHole-v1"
     """Env id: one of ours or a ManiSkill task the reward fits."""
@@ -41,7 +41,7 @@ class RLConfig:
     steps: int = 20_000
     """Environment steps, all envs together."""
     preset: str = "light"
-    """The preset the run started from (``RLConfig.preset``)."""
+    """The preset the run started from (``RLConfig.from_preset``)."""
     out: Optional[str] = None
     """Run dir; None: outputs/rl/<task>/<reward>/seed<S>."""
 
@@ -57,8 +57,10 @@ class RLConfig:
     policy_qvel: bool = False
     """Whether the policy also gets the joint velocities (9)."""
     policy_privileged: bool = False
-    """Whether the policy gets the task's object poses: the socket's (7) on ours, on ManiSkill's own tasks their
-    state observation's (``obs["extra"]`` but the TCP pose, e.g. the cube's and the goal's); without images only."""
+    """Whether the policy gets the task's object poses, in runs without images.
+
+    On our tasks the socket's pose (7); on ManiSkill's own tasks their state observation's ``obs["extra"]`` but the
+    TCP pose (the cube's and the goal's, for instance)."""
     obs_norm: tuple = ()
     """Vector inputs (state, ft) normalised by running statistics in the network."""
     action_scale: float = 1.0
@@ -79,7 +81,7 @@ class RLConfig:
     """One extractor for actor and critics, trained by the critic loss, the actor reading it detached.
 
     As ManiSkill's sac_rgbd.py and DrQ: per gradient step the CNNs run 2 forward and 1 backward passes,
-    not 5 and 3. Run configs without the field load with False, as those runs were trained."""
+    not 5 and 3."""
 
     # --- SAC (stable-baselines3)
     learning_rate: float = 3e-4
@@ -93,8 +95,7 @@ class RLConfig:
     train_freq: int = 1
     """Env steps between updates; the update ratio is gradient_steps / train_freq.
 
-    Every preset takes 1: a quarter of the updates reached the speed targets but cost learning
-    (docs/rl.md, "Speed")."""
+    Every preset takes 1: fewer updates per env step run faster but learn less (docs/rl.md, "Speed")."""
     gradient_steps: int = 1
     """Gradient steps per update."""
     gamma: float = 0.95
@@ -150,9 +151,8 @@ class RLConfig:
 
     None: shifted when episodes end at success (a positive reward would pay for not finishing), else paper."""
 
-    # The field ``preset`` records the preset's name in a run's config.json; this method makes one.
     @classmethod
-    def preset(cls, name: str, **overrides) -> "RLConfig":  # noqa: F811
+    def from_preset(cls, name: str, **overrides) -> "RLConfig":
         """The ``state`` (reward studies), ``light`` or ``image`` (CPU images) or ``paper`` config, with overrides."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose one of {list(PRESETS)}")
@@ -164,16 +164,15 @@ class RLConfig:
                 cameras=(), policy_ft=True, policy_state=True, policy_qvel=True, policy_privileged=True,
                 steps=50_000, buffer_size=100_000, batch_size=256, learning_starts=1_000, eval_every=2_500,
                 **LEARNABLE,
-                shared_encoder=False,  # no camera to share; the comparison's runs were made with SB3's layout
-                # The gradient step in bfloat16, overlapped with the env step in a child process (2 cores):
-                # within 2x of the env's own stepping, learning at the same steps (docs/rl.md, "Speed").
-                # bfloat16 only where the CPU has it in hardware: emulated, it made the run 6.5-6.9x slower.
-                # The comparison's 30 runs were made in float32 and in one process (labelled so).
+                shared_encoder=False,  # no camera to share: SB3's own layout
+                # The gradient step overlapped with the env step in a child process (2 cores), in bfloat16 where
+                # the CPU computes it in hardware (emulated, it is slower than float32): within 2x of the env's own
+                # stepping, learning at the same steps (docs/rl.md, "Speed").
                 train_bf16=native_bf16(), overlap_env=True,
             )
         elif name == "light":
             # Images on this CPU: the state preset's learnability settings, the env overlapped with the gradient
-            # step (a quarter of the updates would be as fast, at a cost to learning).
+            # step (fewer updates would be as fast, at a cost to learning).
             base.update(**LEARNABLE, overlap_env=True)
         elif name == "image":
             # The paper's inputs on this CPU: both cameras (32 px) and proprioception for every reward, the F/T
@@ -186,17 +185,12 @@ class RLConfig:
                 image_size=128, policy_ft=None, policy_state=False, cnn_channels=(16, 32, 32, 64, 64, 64),
                 steps=150_000, buffer_size=50_000, batch_size=256, learning_starts=5_000, eval_every=5_000,
             )
-        overrides = _vice_as_reward_kwargs(overrides)
         unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise TypeError(f"unknown RLConfig fields {sorted(unknown)}")
         return cls(**{**base, **overrides})
 
     def __post_init__(self):
-        if not isinstance(self.preset, str):
-            # The classmethod ``preset`` shadows the field's default: a plain RLConfig() is "light"
-            # (without the preset's overrides).
-            self.preset = "light"
         self.train_bf16 = bool(self.train_bf16)
         self.overlap_env = bool(self.overlap_env)
         for key in ("cameras", "cnn_channels", "net_arch", "obs_norm"):
@@ -258,11 +252,14 @@ class RLConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "RLConfig":
-        """Inverse of ``to_dict`` (unknown keys are an error, so a stale config is not half-read).
-
-        A config without ``shared_encoder`` is from a run trained with SB3's separate extractors.
-        """
-        return cls(**{"shared_encoder": False, **_vice_as_reward_kwargs(d)})
+        """Inverse of ``to_dict``: every field, no other key (a stale config is refused, not half-read)."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        missing, unknown = [k for k in names if k not in d], sorted(set(d) - set(names))
+        if missing or unknown:
+            found = [f"it lacks {missing}"] * bool(missing) + [f"it has unknown keys {unknown}"] * bool(unknown)
+            raise ValueError(f"not an RLConfig of this version: {' and '.join(found)}; a run's config.json holds "
+                             f"every field of RLConfig.to_dict(), no other")
+        return cls(**d)
 
     def save(self, path) -> None:
         """Write the config as JSON."""
@@ -294,16 +291,3 @@ def overlap_env_used(overlap_env: bool, reward: str, algo: str = "sac") -> bool:
     if reward not in REWARDS or algo not in ALGOS:
         return False
     return REWARDS[reward].learner is None and hasattr(ALGOS[algo].cls, "train_while_env_steps")
-
-
-def _vice_as_reward_kwargs(d: dict) -> dict:
-    """Run configs that name ``vice`` and ``vice_goal_seeds``, read as the ``reward_kwargs`` they mean."""
-    d = dict(d)
-    if "vice" in d or "vice_goal_seeds" in d:
-        options = dict(d.pop("vice", {}) or {})
-        if "vice_goal_seeds" in d:
-            seeds = d.pop("vice_goal_seeds")
-            if seeds != 10:
-                options["goal_seeds"] = seeds
-        d["reward_kwargs"] = {**options, **d.get("reward_kwargs", {})}
-    return d

@@ -54,7 +54,7 @@ def trial_config(preset: str, task: str, reward: str, seed: int, steps: int, out
     """The RLConfig of one trial: the preset, the given train-policy flags, then its task, reward, seed and folder."""
     from drem_maniskill.utils.config_cli import apply_overrides
 
-    config = apply_overrides(RLConfig.preset(preset), dict(overrides or {}))
+    config = apply_overrides(RLConfig.from_preset(preset), dict(overrides or {}))
     run_dir = trial_dir(out, preset, task, reward, seed, nest_preset)
     return apply_overrides(config, dict(task=task, reward=reward, seed=int(seed), steps=int(steps), out=str(run_dir)))
 
@@ -65,7 +65,7 @@ def check_grid(tasks: Sequence[str], rewards: Sequence[str], presets: Sequence[s
     from drem_maniskill.rl.rewards import reward_spec, supported_rewards
 
     for preset in presets:
-        RLConfig.preset(preset)
+        RLConfig.from_preset(preset)
     for task in tasks:
         check_env_id(task)
     for reward in rewards:
@@ -89,7 +89,7 @@ def plan_trials(tasks: Sequence[str], rewards: Sequence[str], seeds: Sequence[in
 
 
 def configs_from_args(args) -> list:
-    """The trials of a parsed ``sweep`` command line (``rl.__main__``'s parser)."""
+    """The trials of a parsed ``sweep`` command line (its parser: ``rl.__main__.add_subcommands``)."""
     from drem_maniskill.utils.config_cli import overrides_from_args
 
     overrides = overrides_from_args(args, RLConfig, skip=SWEEP_FIELDS)

@@ -39,7 +39,9 @@ from drem_maniskill.rl.algos import algo_spec
 from drem_maniskill.rl.config import RLConfig
 from drem_maniskill.rl.rewards import reward_checkpoint, reward_spec
 from drem_maniskill.rl.run_env import make_eval_env, make_vec_env
+from drem_maniskill.rl.run_policy import deterministic_policy, latest_checkpoint
 from drem_maniskill.rl.vec_env import SubprocDictVecEnv
+from drem_maniskill.utils.atomic import atomic_path, write_json
 from drem_maniskill.utils.episodes import max_episode_steps
 from drem_maniskill.utils.progress import progress_bar
 
@@ -49,16 +51,6 @@ RESUMABLE_FIELDS = ("steps", "out", "eval_every", "threads", "device")
 
 
 # ---------------------------------------------------------------------------- evaluation
-def deterministic_policy(model):
-    """``policy(obs) -> action`` of an SB3 model on our dict observations (torch in, torch out), for ``rollout``."""
-
-    def act(obs):
-        action, _ = model.predict({k: v.cpu().numpy() for k, v in obs.items()}, deterministic=True)
-        return torch.as_tensor(action, dtype=torch.float32)
-
-    return act
-
-
 def evaluate_policy(model, env, seeds: Sequence[int], horizon: int) -> dict:
     """Deterministic policy on each seed for ``horizon`` steps: success rate (success at any step) and mean return."""
     act = deterministic_policy(model)
@@ -80,51 +72,30 @@ def read_eval_csv(path) -> list[dict]:
 
 
 def _write_eval_csv(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=EVAL_COLUMNS)
         w.writeheader()
         for row in rows:
             w.writerow({k: row[k] for k in EVAL_COLUMNS})
-    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------------------- checkpoints
-def latest_checkpoint(run_dir) -> Optional[Path]:
-    """The newest complete checkpoint folder of a run, or None."""
-    latest = Path(run_dir) / "checkpoints" / "latest.json"
-    if not latest.exists():
-        return None
-    folder = latest.parent / json.loads(latest.read_text())["dir"]
-    return folder if folder.exists() else None
-
-
-def _atomic_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
-
-
 def save_run_checkpoint(run_dir: Path, config: RLConfig, model, learned, progress: dict) -> Path:
     """Write the model (and replay buffer), a learned reward's state and progress to a new folder.
 
     Then point ``latest.json`` at it.
     """
     root = run_dir / "checkpoints"
-    root.mkdir(parents=True, exist_ok=True)
     name = f"step_{model.num_timesteps}"
-    tmp = root / (name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    algo_spec(config.algo).save(model, tmp)
-    if learned is not None:
-        torch.save(learned.state_dict(), tmp / f"{config.reward}.pt")
-    (tmp / "progress.json").write_text(json.dumps(progress, indent=2) + "\n")
     final = root / name
-    shutil.rmtree(final, ignore_errors=True)
-    os.replace(tmp, final)
+    with atomic_path(final, directory=True) as tmp:
+        algo_spec(config.algo).save(model, tmp)
+        if learned is not None:
+            torch.save(learned.state_dict(), tmp / f"{config.reward}.pt")
+        (tmp / "progress.json").write_text(json.dumps(progress, indent=2) + "\n")
     # Only now is the checkpoint complete: an interruption before this line leaves the old one in charge.
-    _atomic_json(root / "latest.json", {"step": model.num_timesteps, "dir": name})
+    write_json(root / "latest.json", {"step": model.num_timesteps, "dir": name})
+    # Older checkpoints, and the temp folders of interrupted ones.
     for old in root.iterdir():
         if old.is_dir() and old.name != name:
             shutil.rmtree(old, ignore_errors=True)
@@ -255,7 +226,7 @@ def pin_reward_checkpoint(config: RLConfig, run_dir: Path, resuming: bool) -> Op
                 f"and {path} is now another file (sha256 {now['sha256'][:12]}): resume with --reward-checkpoint "
                 "pointing at a copy of the original, or start a new run with another --out")
         return saved
-    _atomic_json(pin, now)
+    write_json(pin, now)
     return now
 
 

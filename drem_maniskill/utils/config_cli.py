@@ -24,6 +24,7 @@ import functools
 import inspect
 import io
 import json
+import re
 import textwrap
 import tokenize
 import typing
@@ -70,8 +71,8 @@ def _trailing_comment(line: str) -> str:
 def first_sentence(doc: str) -> str:
     """The first sentence of ``doc`` on one line (all of its first paragraph when it has no sentence end)."""
     text = " ".join(doc.split("\n\n")[0].split())
-    cut = text.find(". ")
-    return text[: cut + 1] if cut > 0 else text
+    end = re.search(r"(?<!e\.g)(?<!i\.e)\. ", text)  # an abbreviation's full stop ends no sentence
+    return text[: end.start() + 1] if end else text
 
 
 def config_fields(cls) -> list:

@@ -28,7 +28,7 @@ def _hold_path(env, target, via, seed: int = 0, steps: int = 20):
 
 
 def test_a_hold_through_a_via_point_goes_straight_down_beside_the_block():
-    from drem_maniskill.pipeline.examine import SIDE_POSITION, hold_targets, hold_vias
+    from drem_maniskill.evaluate.probes import SIDE_POSITION, hold_targets, hold_vias
 
     env = make_env("USBInsertion-v1", obs_mode="state_dict")
     target, via = hold_targets(env)[SIDE_POSITION], hold_vias(env)[SIDE_POSITION]
@@ -42,7 +42,7 @@ def test_a_hold_through_a_via_point_goes_straight_down_beside_the_block():
 
 
 def test_a_hold_pushed_against_the_blocks_side_presses_it_sideways_and_down_where_the_overmould_meets_its_edge():
-    from drem_maniskill.pipeline.examine import SIDE_DOWN, SIDE_PUSHED, hold_targets, hold_vias
+    from drem_maniskill.evaluate.probes import SIDE_DOWN, SIDE_PUSHED, hold_targets, hold_vias
 
     env = make_env("USBInsertion-v1", obs_mode="state_dict")
     target, via = hold_targets(env)[SIDE_PUSHED], hold_vias(env)[SIDE_PUSHED]
@@ -61,7 +61,7 @@ def test_a_turned_hold_holds_the_part_turned_and_tilted_where_an_upright_one_hol
     import numpy as np
 
     from drem_maniskill.experts.scripted import HoldPolicy
-    from drem_maniskill.pipeline.examine import TURN, TURN_STEPS, TURNED_HOVER, hold_targets, hold_turns
+    from drem_maniskill.evaluate.probes import TURN, TURN_STEPS, TURNED_HOVER, hold_targets, hold_turns
 
     env = make_env(task, obs_mode="state_dict")
     u = env.unwrapped

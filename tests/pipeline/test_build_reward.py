@@ -1,18 +1,23 @@
-"""``build_reward``: a task's recipe from the demo to a published reward folder, each stage resumable."""
+"""``build_reward``: a task's recipe from the demo to a reward folder, each stage resumable; published on request."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
+from pathlib import Path
 
 import pytest
 import torch
 
+import drem_maniskill.pipeline.build_reward as build_module
 from drem_maniskill.drem.checkpoint import load_checkpoint
-from drem_maniskill.pipeline.build_reward import PUBLISHED, build_reward, check_same_recipe, demo_stage
-from drem_maniskill.pipeline.recipe import RecipeError, load_recipe, read_toml, recipe_path
+from drem_maniskill.pipeline.build_reward import PUBLISHED, STAGES, build_reward, check_same_recipe, demo_stage
+from drem_maniskill.pipeline.recipe import SECTIONS, RecipeError, load_recipe, read_toml, recipe_path
 
-STAGES = ("sample", "train", "examine", "train_image", "examine_image", "calibrate")
+ROOT = Path(__file__).resolve().parents[2]
+
+LOGGED = ("sample", "train", "examine", "train_image", "examine_image", "calibrate")
 
 
 @pytest.mark.slow
@@ -30,11 +35,11 @@ def test_tiny_build_runs_end_to_end_and_a_second_call_skips_every_stage(tmp_path
     assert json.loads((out / "quality.json").read_text())["seeds"] == [0]
     assert all((out / name).is_file() for name in PUBLISHED.values())
     first = capsys.readouterr().err
-    assert "demo: the committed" in first and all(f"{s}: running" in first for s in STAGES)
+    assert "demo: the committed" in first and all(f"{s}: running" in first for s in LOGGED)
 
     build_reward("PegInHole-v1", scale="tiny", out=out)
     again = capsys.readouterr().err
-    assert all(f"{s}: skipped" in again for s in STAGES) and ": running" not in again
+    assert all(f"{s}: skipped" in again for s in LOGGED) and ": running" not in again
     print(f"tiny build: {took:.0f} s")
 
 
@@ -80,6 +85,68 @@ def test_a_demo_of_another_task_is_refused(tmp_path):
 
 def _raw(task: str) -> dict:
     return read_toml(recipe_path(task), task)
+
+
+def test_every_recipe_section_is_read_by_a_declared_stage():
+    assert {section for s in STAGES.values() for section in s.sections} == set(SECTIONS)
+    assert all(set(s.reads) <= set(STAGES) - {s.name} for s in STAGES.values())
+
+
+def _fake_stages(monkeypatch, shipped: Path) -> None:
+    """Every expensive stage replaced by one writing a few bytes, and ``shipped`` as the shipped rewards' folder."""
+
+    def write(path, text: str = "made") -> None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+    def examine(task, checkpoint, out, r) -> None:
+        write(out, "{}")
+        write(out.parent / "examination.png")
+
+    monkeypatch.setattr(build_module, "_sample", lambda expert, out, r, episode=0: write(out))
+    monkeypatch.setattr(build_module, "_train", lambda tree, out, *args: write(out, f"model of {out.parent.name}"))
+    monkeypatch.setattr(build_module, "_examine", examine)
+    monkeypatch.setattr(build_module, "_calibrate", lambda checkpoint, tree, out, r: write(out, "{}"))
+    monkeypatch.setattr(build_module, "REWARDS_DIRS", (shipped,))
+
+
+def _digests(folder: Path) -> dict:
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_full_scale_build_works_in_its_work_folder_and_leaves_the_shipped_rewards_as_they_are(tmp_path, monkeypatch):
+    shipped = tmp_path / "rewards"
+    (shipped / "PegInHole-v1").mkdir(parents=True)
+    (shipped / "PegInHole-v1" / "drem.pt").write_text("shipped")
+    checkout = _digests(ROOT / "rewards")
+    _fake_stages(monkeypatch, shipped)
+    monkeypatch.chdir(tmp_path)
+    path = build_reward("PegInHole-v1")
+    work = Path("outputs") / "build_reward" / "PegInHole-v1" / "full"
+    assert path == work / "drem.pt" and path.read_text() == "model of reward"
+    assert all((work / name).is_file() for name in PUBLISHED.values())
+    assert _digests(shipped) == {str(shipped / "PegInHole-v1" / "drem.pt"): hashlib.sha256(b"shipped").hexdigest()}
+    assert _digests(ROOT / "rewards") == checkout
+
+
+def test_publish_copies_the_products_into_the_shipped_folder_saying_what_it_replaces(tmp_path, monkeypatch, capsys):
+    dest = tmp_path / "rewards" / "PegInHole-v1"
+    dest.mkdir(parents=True)
+    (dest / "drem.pt").write_text("shipped")
+    (dest / "support.json").write_text("{}")
+    _fake_stages(monkeypatch, tmp_path / "rewards")
+    with pytest.raises(RecipeError, match="only a full-scale build publishes"):
+        build_reward("PegInHole-v1", scale="tiny", out=tmp_path / "tiny", publish=True)
+    assert not (tmp_path / "tiny").exists()
+    path = build_reward("PegInHole-v1", out=tmp_path / "work", publish=True)
+    assert path == dest / "drem.pt" and path.read_text() == "model of reward"
+    assert sorted(p.name for p in dest.iterdir()) == sorted(PUBLISHED.values())
+    err = capsys.readouterr().err
+    assert f"publish: {dest / 'drem.pt'} replaced (changed)" in err
+    assert f"publish: {dest / 'support.json'} unchanged" in err
+    assert f"publish: {dest / 'quality.json'} (new)" in err
+    assert (dest / "drem_image.pt").read_text() == "model of reward_image"
 
 
 

@@ -91,24 +91,21 @@ def test_an_unfinished_or_foreign_file_names_the_command_that_makes_a_tree(tmp_p
 
 
 @pytest.mark.slow
-def test_a_tree_with_the_flat_config_of_older_versions_still_loads_with_the_nested_one(pipeline, tmp_path):
-    """Trees sampled before the config was nested record the flat form; the dataset hands on the nested one."""
+def test_the_dataset_hands_on_the_trees_config_and_refuses_one_it_cannot_read(pipeline, tmp_path):
+    """A tree's sampler config reaches the dataset with every field; one this version cannot read names the fix."""
     from drem_maniskill.drem.model import ModelConfig
     from drem_maniskill.pipeline.dataset import TreeDataset
     from drem_maniskill.pipeline.tree.config import SamplerConfig
 
+    config = ModelConfig(image_size=64)
+    assert TreeDataset(pipeline["tree"], config).header["config"] == SamplerConfig.preset("tiny").to_dict()
     old = tmp_path / "old.h5"
     old.write_bytes(open(pipeline["tree"], "rb").read())
     with h5py.File(old, "a") as f:
         header = json.loads(f.attrs["header"])
-        header["config"] = dict(num_children=4, max_depth=40, outward_depth=0, face_children=60, goal_presses=0)
         del header["socket_geometry"]
-        f.attrs["header"] = json.dumps(header)
-    config = ModelConfig(image_size=64)
-    data = TreeDataset(str(old), config)
-    assert data.header["config"] == SamplerConfig.preset("tiny").to_dict()
-    assert TreeDataset(pipeline["tree"], config).header["config"] == data.header["config"]
-    with h5py.File(old, "a") as f:
-        f.attrs["header"] = json.dumps({**header, "config": dict(wiggle_depth=3)})
-    with pytest.raises(ValueError, match="wiggle_depth.*drem-maniskill sample"):
-        TreeDataset(str(old), config)
+    for unread in (dict(num_children=4, max_depth=40, outward_depth=0), dict(wiggle_depth=3)):
+        with h5py.File(old, "a") as f:
+            f.attrs["header"] = json.dumps({**header, "config": unread})
+        with pytest.raises(ValueError, match=f"{list(unread)[-1]}.*drem-maniskill sample"):
+            TreeDataset(str(old), config)

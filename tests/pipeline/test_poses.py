@@ -123,7 +123,7 @@ def test_a_round_that_found_no_negatives_costs_a_poses_reward_nothing(tmp_path):
     poses reward pays it is empty, and a round that found some is paid one value per row."""
     from drem_maniskill.drem.checkpoint import load_checkpoint
     from drem_maniskill.drem.reward import DREMReward
-    from drem_maniskill.pipeline.policy_rounds import paid_on_negatives, write_negatives
+    from drem_maniskill.pipeline.negatives import paid_on_negatives, write_negatives
     from tests.conftest import tiny_checkpoint
 
     reward = DREMReward(*load_checkpoint(tiny_checkpoint(tmp_path / "r.pt", STOCK, ("poses",), (), poses_size=5)))

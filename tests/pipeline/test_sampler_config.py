@@ -1,20 +1,19 @@
-"""``SamplerConfig``: its nested and flat forms agree, unknown keys are refused, a phase registers in one place."""
+"""``SamplerConfig``: its dict form reads back, unknown keys are refused, a phase registers in one place."""
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
+from drem_maniskill.pipeline.recipe import load_recipe
 from drem_maniskill.pipeline.tree import tree_file
 from drem_maniskill.pipeline.tree.config import SamplerConfig
 from drem_maniskill.pipeline.tree.phases import FIRST_STREAM, PHASES, Phase, register_phase, stream_of
 
-SHIPPED = Path(__file__).parents[2] / "rewards"
 
 NESTED_USB = {
     "num_children": 500, "expert_step_scale": 4.0, "workers": 2, "max_depth": 80,
@@ -29,32 +28,28 @@ NESTED_USB = {
 }
 
 
-def test_the_flat_form_of_a_shipped_checkpoint_and_the_nested_form_give_equal_configs():
-    from drem_maniskill.drem.checkpoint import load_checkpoint
-
-    flat = load_checkpoint(str(SHIPPED / "USBInsertion-v1" / "drem.pt"))[0]["sampler"]
-    assert "face_depth" in flat and "phases" not in flat  # the form older headers hold
-    config = SamplerConfig.from_dict(flat)
-    assert config == SamplerConfig.from_dict(NESTED_USB)
+def test_the_dict_form_reads_back_to_the_same_config():
+    config = SamplerConfig.from_dict(NESTED_USB)
     assert list(config.phases_on()) == ["outward", "face", "side", "push", "goal_presses", "turn"]
     # to_dict is the nested form, JSON-ready, and reads back to the same config.
     nested = json.loads(json.dumps(config.to_dict()))
     assert SamplerConfig.from_dict(nested) == config and nested["phases"]["turn"]["children"] == 16
     assert nested["phases"]["outward"]["elevations"] == [0.0, -35.0, -60.0]
-    # A flat header without a phase's keys has that phase off; the peg's has the outward phase alone.
-    peg = SamplerConfig.from_dict(load_checkpoint(str(SHIPPED / "PegInHole-v1" / "drem.pt"))[0]["sampler"])
+    # The shipped rewards' recipes: the USB one is this config on one worker; the peg's has the outward phase alone.
+    assert load_recipe("USBInsertion-v1").sampler_config() == SamplerConfig.from_dict({**NESTED_USB, "workers": 1})
+    peg = load_recipe("PegInHole-v1").sampler_config()
     assert list(peg.phases_on()) == ["outward"] and peg.phases["outward"].depth == 10
 
 
-def test_presets_and_flat_overrides_give_the_nested_config():
-    tiny = SamplerConfig.preset("tiny", face_depth=2, face_lineages=4, goal_presses=8)
+def test_presets_and_overrides_give_the_nested_config():
+    tiny = SamplerConfig.preset("tiny", phases=dict(face=dict(depth=2, lineages=4), goal_presses=dict(count=8)))
     assert tiny == SamplerConfig.from_dict(dict(num_children=4, max_depth=40, phases=dict(
         face=dict(depth=2, lineages=4), goal_presses=dict(count=8))))
     assert tiny.phases["face"].children == 60 and tiny.phases["side"].depth == 0
     assert SamplerConfig() == SamplerConfig.preset("paper") and not SamplerConfig().phases_on()
     # Every phase is there, off at size 0; an off phase's other settings are its defaults (they change nothing).
     assert set(SamplerConfig().phases) == set(PHASES)
-    assert SamplerConfig.from_dict(dict(face_depth=0, face_children=24)) == SamplerConfig()
+    assert SamplerConfig.from_dict(dict(phases=dict(face=dict(depth=0, children=24)))) == SamplerConfig()
     with pytest.raises(ValueError, match="unknown sampler preset 'huge'"):
         SamplerConfig.preset("huge")
 
@@ -71,11 +66,9 @@ def test_unknown_keys_are_refused_by_name_with_the_valid_ones(bad, named):
     assert "valid ones" in str(err.value)
 
 
-def test_a_setting_given_twice_differently_is_refused():
-    same = dict(face_depth=8, phases=dict(face=dict(depth=8)))
-    assert SamplerConfig.from_dict(same).phases["face"].depth == 8
-    with pytest.raises(ValueError, match="'depth' given twice"):
-        SamplerConfig.from_dict(dict(face_depth=8, phases=dict(face=dict(depth=4))))
+def test_a_phase_setting_outside_phases_is_refused_naming_where_it_goes():
+    with pytest.raises(ValueError, match=r"unknown sampler setting 'face_depth'.*phases\.face\.depth"):
+        SamplerConfig.from_dict(dict(face_depth=8))
 
 
 @dataclass
@@ -108,12 +101,12 @@ def nudge_phase():
     PHASES.pop("nudge")
 
 
-def test_a_registered_phase_is_in_the_config_in_both_forms_and_draws_its_own_stream(nudge_phase):
+def test_a_registered_phase_is_in_the_config_and_draws_its_own_stream(nudge_phase):
     assert list(PHASES)[-1] == "nudge" and stream_of("nudge") == FIRST_STREAM + len(PHASES) - 1
     assert len({stream_of(n) for n in PHASES}) == len(PHASES)
     assert SamplerConfig().phases["nudge"] == NudgeConfig() and "nudge" not in SamplerConfig().phases_on()
     config = SamplerConfig.from_dict(dict(phases=dict(nudge=dict(count=3))))
-    assert config == SamplerConfig.from_dict(dict(nudge_count=3)) == SamplerConfig.preset("paper", nudge_count=3)
+    assert config == SamplerConfig.preset("paper", phases=dict(nudge=dict(count=3)))
     assert config.to_dict()["phases"]["nudge"] == dict(count=3, scale=0.1)
     assert SamplerConfig.from_dict(config.to_dict()) == config
     with pytest.raises(ValueError, match="registered already"):
@@ -128,7 +121,8 @@ def test_a_registered_phase_runs_in_backward_sample_and_a_finished_tree_gains_it
     tree_file.partial_path(out).write_bytes(open(pipeline["tree"], "rb").read())
     with h5py.File(pipeline["tree"], "r") as f:
         n = len(f["depth"])
-    backward_sample(pipeline["expert"], str(out), SamplerConfig.preset("tiny", nudge_count=3), progress=False)
+    config = SamplerConfig.preset("tiny", phases=dict(nudge=dict(count=3)))
+    backward_sample(pipeline["expert"], str(out), config, progress=False)
     with h5py.File(out, "r") as f:
         assert f.attrs["complete"] and int(f.attrs["nudge_completed"]) == 1 and len(f["depth"]) == n + 3
         assert np.all(f["depth"][n:] == 1) and np.all(f["parent"][n:] == 0) and not f["is_seed"][n:].any()

@@ -11,7 +11,7 @@ import pytest
 
 from drem_maniskill.envs import TASKS, PegInHoleEnv
 from drem_maniskill.experts.scripted import HoldPolicy
-from drem_maniskill.pipeline.examine import HOLD_POSITIONS
+from drem_maniskill.evaluate.probes import HOLD_POSITIONS
 from drem_maniskill.envs.adapter import SocketGeometry
 from drem_maniskill.pipeline.tree import tree_file
 from drem_maniskill.pipeline.tree.backward import NoStartRegionError, backward_sample
@@ -119,7 +119,7 @@ def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_outward_lineages_leave_the_start_region_along_their_directions_and_resume(pipeline, tmp_path, monkeypatch):
-    config = SamplerConfig.preset("tiny", outward_depth=3, outward_lineages=4, outward_children=6)
+    config = SamplerConfig.preset("tiny", phases=dict(outward=dict(depth=3, lineages=4, children=6)))
     out = tmp_path / "tree.h5"
     calls = _interrupt_then_resume(  # interrupted in the outward phase's second depth, then resumed
         pipeline["expert"], out, config, monkeypatch,
@@ -275,7 +275,7 @@ def test_lineages_never_keep_a_child_caught_in_the_opening_and_do_not_keep_the_c
 @pytest.mark.slow
 def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(pipeline, tmp_path, monkeypatch):
     """Each face lineage moves out of the opening along its direction, one depth per step, and resumes."""
-    config = SamplerConfig.preset("tiny", face_depth=3, face_lineages=4, face_children=6)
+    config = SamplerConfig.preset("tiny", phases=dict(face=dict(depth=3, lineages=4, children=6)))
     out = tmp_path / "tree.h5"
     calls = _interrupt_then_resume(  # interrupted in the face phase's second depth, then resumed
         pipeline["expert"], out, config, monkeypatch, lambda path, depth, chosen, kw: kw.get("group") == "face_2")
@@ -314,15 +314,16 @@ def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(
 def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_them(pipeline, tmp_path, monkeypatch):
     """The side phase continues each face lineage, labelled past it, along its steep direction; a complete tree without
     it gains it by a resume that samples the side depths alone, and an interrupted side phase resumes."""
-    face = SamplerConfig.preset("tiny", face_depth=2, face_lineages=4, face_children=6)
+    face = SamplerConfig.preset("tiny", phases=dict(face=dict(depth=2, lineages=4, children=6)))
     out = tmp_path / "tree.h5"
     backward_sample(pipeline["expert"], str(out), face, progress=False)
     with pytest.raises(ValueError, match="face.depth"):
-        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", side_depth=2),
-                        progress=False)
+        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"),
+                        SamplerConfig.preset("tiny", phases=dict(side=dict(depth=2))), progress=False)
     grown = tmp_path / "grown.h5"
     grown.with_name(grown.name + ".partial").write_bytes(out.read_bytes())
-    side = SamplerConfig.preset("tiny", face_depth=2, face_lineages=4, face_children=6, side_depth=3, side_children=6)
+    side = SamplerConfig.preset("tiny", phases=dict(face=dict(depth=2, lineages=4, children=6),
+                                                    side=dict(depth=3, children=6)))
     calls = _interrupt_then_resume(pipeline["expert"], grown, side, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == "side_2")
     assert calls == ["side_2", "side_3"]  # nothing of the tree it grew from again
@@ -333,7 +334,7 @@ def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_th
         dropped = [int(f[f"seeds/side_{k}"].attrs["dropped_in_opening"]) for k in range(1, 4)]
         assert int(f.attrs["side_completed"]) == 3 and len(f["depth"]) == n + 3 * 4 * 6 - sum(dropped)
         assert not in_opening(f["tip_in_socket"][n:]).any()
-        # Side step k's nodes are labelled past the face phase's last: entry + face_depth + k.
+        # Side step k's nodes are labelled past the face phase's last: entry + face depth + k.
         assert np.array_equal(f["depth"][n:], np.repeat(entry + 2 + np.arange(1, 4), [24 - d for d in dropped]))
         parent, tcp = f["parent"][()], f["tcp_pose"][()]
         per_seed = [(parent[n : n + 24 - dropped[0]] == s).sum() for s in f["seeds/face_2/node"][()]]
@@ -355,10 +356,10 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
     resumable."""
     from drem_maniskill.pipeline.tree.phases.push import push_groups
 
-    base = dict(face_depth=2, face_lineages=4, face_children=6, side_depth=1, side_children=6)
+    base = dict(face=dict(depth=2, lineages=4, children=6), side=dict(depth=1, children=6))
     grown = tmp_path / "tree.h5"
-    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
-    config = SamplerConfig.preset("tiny", **base, push_children=5)
+    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", phases=base))
+    config = SamplerConfig.preset("tiny", phases=dict(base, push=dict(children=5)))
     assert push_groups(config) == ["face_1", "face_2", "side_1"]
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == "push_2")
@@ -391,13 +392,13 @@ def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_label
     from drem_maniskill.pipeline.tree.phases.base import rotation_vectors
     from drem_maniskill.pipeline.tree.phases.turn import turn_axes, turn_origins
 
-    base = dict(face_depth=2, face_lineages=2, face_children=6)
+    base = dict(face=dict(depth=2, lineages=2, children=6))
     grown = tmp_path / "tree.h5"
-    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
+    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", phases=base))
     with pytest.raises(ValueError, match="face.depth"):
-        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"), SamplerConfig.preset("tiny", turn_depth=2),
-                        progress=False)
-    config = SamplerConfig.preset("tiny", **base, turn_depth=3, turn_children=6)
+        backward_sample(pipeline["expert"], str(tmp_path / "x.h5"),
+                        SamplerConfig.preset("tiny", phases=dict(turn=dict(depth=2))), progress=False)
+    config = SamplerConfig.preset("tiny", phases=dict(base, turn=dict(depth=3, children=6)))
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == "turn_2")
     assert calls == ["turn_2", "turn_3"]  # nothing of the tree it grew from again
@@ -445,7 +446,7 @@ def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_i
     base = dict(expert_step_scale=1.0, max_depth=80)
     grown = tmp_path / "tree.h5"
     n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
-    config = SamplerConfig.preset("tiny", **base, goal_presses=8)
+    config = SamplerConfig.preset("tiny", **base, phases=dict(goal_presses=dict(count=8)))
     calls = _count_depths(monkeypatch)
     backward_sample(pipeline["expert"], str(grown), config, progress=False)
     assert calls == ["goal_press"]
@@ -469,24 +470,29 @@ def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_i
 
 def test_a_partial_tree_resumes_with_more_workers_or_a_new_phase_but_not_with_other_children():
     """Resuming keeps what was sampled: another worker count or a larger max_depth, or a finished tree gaining a phase
-    it lacked, continue it; another M or a phase changed once begun start over. Older headers hold the flat form."""
+    it lacked, continue it; another M or a phase changed once begun start over; a config it cannot read starts over."""
     from drem_maniskill.pipeline.tree.backward import resumable
 
-    def header(**kw):
-        config = SamplerConfig.preset("paper", **{"face_depth": 8, **kw})
+    def header(phases=None, **core):
+        config = SamplerConfig.preset("paper", **core, phases={"face": {"depth": 8}, **(phases or {})})
         return dict(config=config.to_dict(), env_id="USBInsertion-v1")
 
+    turn, side = {"turn": {"depth": 24, "children": 16}}, {"side": {"depth": 8}}
     saved = header()
     assert resumable(saved, header(workers=2)) and resumable(saved, header(max_depth=120))
-    assert resumable(saved, header(turn_depth=24, turn_children=16)) and resumable(saved, header(side_depth=8))
+    assert resumable(saved, header(turn)) and resumable(saved, header(side))
     assert not resumable(saved, header(num_children=400))
-    begun = header(turn_depth=24, turn_children=16)
-    assert resumable(begun, header(turn_depth=24, turn_children=16, workers=2))
-    assert not resumable(begun, header(turn_depth=24, turn_children=24))  # a phase once begun resumes only as it was
-    flat = dict(config=dict(num_children=500, face_depth=8, face_children=60, turn_depth=0), env_id="USBInsertion-v1")
-    assert resumable(flat, header()) and resumable(flat, header(side_depth=8))
-    assert not resumable(flat, header(face_depth=4))
-    assert not resumable(dict(flat, env_id="PegInHole-v1"), header())
+    begun = header(turn)
+    assert resumable(begun, header(turn, workers=2))
+    # A phase once begun resumes only as it was.
+    assert not resumable(begun, header({"turn": {"depth": 24, "children": 24}}))
+    # A header's config leaves out what takes its default.
+    partial = dict(config=dict(num_children=500, phases=dict(face=dict(depth=8, children=60), turn=dict(depth=0))),
+                   env_id="USBInsertion-v1")
+    assert resumable(partial, header()) and resumable(partial, header(side))
+    assert not resumable(partial, header({"face": {"depth": 4}}))
+    assert not resumable(dict(partial, env_id="PegInHole-v1"), header())
+    assert not resumable(dict(config=dict(num_children=500, face_depth=8), env_id="USBInsertion-v1"), header())
 
 
 def _cube_positions(tree_path: str, env_kwargs: dict) -> dict:

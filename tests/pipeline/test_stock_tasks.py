@@ -129,7 +129,7 @@ def test_examine_a_stock_task_against_its_normalized_dense(stock_pipeline, tmp_p
     and sets DREM beside ManiSkill's own normalized_dense, step by step."""
     from PIL import Image
 
-    from drem_maniskill.pipeline.examine import STOCK_EXAMINATION, examine
+    from drem_maniskill.evaluate.examine import STOCK_EXAMINATION, examine
 
     result = examine(STOCK, stock_pipeline["checkpoint"], seeds=[0], out_dir=str(tmp_path))
     assert tuple(result["curves"]) == STOCK_EXAMINATION

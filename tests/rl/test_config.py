@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import pytest
 
 from drem_maniskill.rl import RLConfig
 
+ROOT = Path(__file__).resolve().parents[2]
+
 
 def test_paper_preset_gives_ft_only_to_drem():
-    assert RLConfig.preset("paper", reward="drem").uses_ft
-    assert not RLConfig.preset("paper", reward="drem-image").uses_ft
-    assert RLConfig.preset("light", reward="sparse").uses_ft  # light: the same obs for every reward
+    assert RLConfig.from_preset("paper", reward="drem").uses_ft
+    assert not RLConfig.from_preset("paper", reward="drem-image").uses_ft
+    assert RLConfig.from_preset("light", reward="sparse").uses_ft  # light: the same obs for every reward
 
 
 COMPARED = ("sparse", "engineered", "vice", "drem-image", "drem")
@@ -23,7 +28,7 @@ def test_image_preset_gives_ft_to_drem_alone_and_the_socket_pose_to_none(reward)
 
     from drem_maniskill.rl.run_env import make_env
 
-    configs = {r: RLConfig.preset("image", reward=r) for r in COMPARED}
+    configs = {r: RLConfig.from_preset("image", reward=r) for r in COMPARED}
     assert [c.uses_ft for c in configs.values()] == [False, False, False, False, True]
     assert all(c.uses_images and c.image_size == 32 and not c.policy_privileged for c in configs.values())
     assert {(c.steps, c.eval_every) for c in configs.values()} == {(50_000, 2_500)}
@@ -45,21 +50,27 @@ def test_image_preset_gives_ft_to_drem_alone_and_the_socket_pose_to_none(reward)
 
 
 def test_a_plain_config_is_the_light_preset_and_saves(tmp_path):
-    """The classmethod ``preset`` shares its name with a field: a plain RLConfig() still gets a string there."""
+    """A plain RLConfig() names the light preset (without the preset's overrides), and saves and loads back."""
     config = RLConfig()
     assert config.preset == "light" and config.algo == "sac"
     config.save(tmp_path / "config.json")
     assert RLConfig.load(tmp_path / "config.json") == config
 
 
-def test_run_configs_from_before_the_reward_table_still_load():
-    """config.json of runs made before 0.1's re-layering: ``vice`` and ``vice_goal_seeds`` fields, no ``algo``."""
-    old = RLConfig.preset("light", reward="vice").to_dict()
-    del old["reward_kwargs"], old["algo"]
-    plain = dict(old, vice={}, vice_goal_seeds=10)
-    assert RLConfig.from_dict(plain) == RLConfig.preset("light", reward="vice")
-    tuned = dict(old, vice={"update_every": 16}, vice_goal_seeds=3)
-    assert RLConfig.from_dict(tuned).reward_kwargs == {"update_every": 16, "goal_seeds": 3}
+def test_every_committed_run_config_loads_as_it_was_saved():
+    """The run configs under docs/results hold every field: ``RLConfig.load`` reads each with the one schema."""
+    runs = sorted((ROOT / "docs" / "results").rglob("*config.json"))
+    assert len(runs) >= 162
+    for path in runs:
+        assert RLConfig.load(path).to_dict() == json.loads(path.read_text()), path
+
+
+def test_a_config_missing_a_field_or_holding_an_unknown_key_is_refused():
+    saved = RLConfig.from_preset("light", reward="vice").to_dict()
+    with pytest.raises(ValueError, match=r"it lacks \['shared_encoder'\]"):
+        RLConfig.from_dict({k: v for k, v in saved.items() if k != "shared_encoder"})
+    with pytest.raises(ValueError, match=r"it has unknown keys \['vice_goal_seeds'\]"):
+        RLConfig.from_dict({**saved, "vice_goal_seeds": 10})
 
 
 def test_state_preset_sees_no_image_and_nothing_a_reward_is_computed_from():
@@ -68,7 +79,7 @@ def test_state_preset_sees_no_image_and_nothing_a_reward_is_computed_from():
 
     from drem_maniskill.rl.run_env import make_env
 
-    config = RLConfig.preset("state", reward="engineered")
+    config = RLConfig.from_preset("state", reward="engineered")
     assert not config.uses_images and config.uses_ft
     env, _ = make_env(config, for_eval=True)
     try:
@@ -88,9 +99,9 @@ def test_state_preset_sees_no_image_and_nothing_a_reward_is_computed_from():
     finally:
         env.close()
     # The image presets keep their cameras; DREM's policy alone gets F/T in the paper's.
-    assert RLConfig.preset("paper", reward="drem").uses_images and RLConfig.preset("light").uses_images
+    assert RLConfig.from_preset("paper", reward="drem").uses_images and RLConfig.from_preset("light").uses_images
     rewards = ("drem", "drem-image", "engineered", "sparse", "vice")
-    assert [RLConfig.preset("paper", reward=r).uses_ft for r in rewards] == [True, False, False, False, False]
+    assert [RLConfig.from_preset("paper", reward=r).uses_ft for r in rewards] == [True, False, False, False, False]
 
 
 def test_running_norm_learns_the_statistics_in_training_and_keeps_them_in_evaluation():
@@ -128,7 +139,7 @@ def test_obs_norm_and_action_scale_reach_the_policy_and_the_controller():
 
     moved = {}
     for scale in (1.0, 0.25):
-        env, _ = make_env(RLConfig.preset("state", reward="engineered", action_scale=scale), for_eval=True)
+        env, _ = make_env(RLConfig.from_preset("state", reward="engineered", action_scale=scale), for_eval=True)
         try:
             env.reset(seed=2)
             start = env.unwrapped.agent.tcp.pose.p.clone()
@@ -140,7 +151,7 @@ def test_obs_norm_and_action_scale_reach_the_policy_and_the_controller():
     assert moved[1.0] > 0.02  # two full steps of up to 2 cm
     assert moved[0.25] == pytest.approx(moved[1.0] / 4, rel=0.15)
 
-    config = RLConfig.preset("state", reward="engineered", obs_norm=("state", "ft"), steps=300)
+    config = RLConfig.from_preset("state", reward="engineered", obs_norm=("state", "ft"), steps=300)
     env, _ = make_env(config)
     venv = ManiSkillDictVecEnv(env, 50)
     try:
@@ -159,9 +170,9 @@ def test_obs_norm_and_action_scale_reach_the_policy_and_the_controller():
     finally:
         venv.close()
     with pytest.raises(ValueError, match="obs_norm takes 'state' and 'ft'"):
-        RLConfig.preset("state", obs_norm=("fixed_camera",))
+        RLConfig.from_preset("state", obs_norm=("fixed_camera",))
     with pytest.raises(ValueError, match=r"action_scale must be in \(0, 1\]"):
-        RLConfig.preset("state", action_scale=0)
+        RLConfig.from_preset("state", action_scale=0)
 
 
 @pytest.mark.parametrize("native", [True, False])
@@ -173,9 +184,9 @@ def test_state_preset_takes_bfloat16_only_where_the_cpu_has_it(monkeypatch, nati
     import drem_maniskill.rl.config as config_module
 
     monkeypatch.setattr(config_module, "native_bf16", lambda: native)
-    assert RLConfig.preset("state").train_bf16 is native
-    assert RLConfig.preset("state", train_bf16=not native).train_bf16 is (not native)
-    assert RLConfig.preset("light").train_bf16 is False
+    assert RLConfig.from_preset("state").train_bf16 is native
+    assert RLConfig.from_preset("state", train_bf16=not native).train_bf16 is (not native)
+    assert RLConfig.from_preset("light").train_bf16 is False
 
 
 def test_native_bf16_reads_torchs_cpu_checks(monkeypatch):
@@ -199,7 +210,7 @@ def test_state_preset_on_a_stock_task_sees_its_object_and_goal_poses():
 
     from drem_maniskill.rl.run_env import make_env
 
-    env, _ = make_env(RLConfig.preset("state", task="PegInsertionSide-v1", reward="sparse"), for_eval=True)
+    env, _ = make_env(RLConfig.from_preset("state", task="PegInsertionSide-v1", reward="sparse"), for_eval=True)
     try:
         u = env.unwrapped
         obs, _ = env.reset(seed=2)

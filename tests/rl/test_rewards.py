@@ -13,7 +13,7 @@ def test_unknown_reward_is_a_clear_error(capsys):
     for name in REWARDS:
         assert name in str(err.value)
     assert "'shaped'" in str(err.value)
-    from drem_maniskill.rl.__main__ import main
+    from drem_maniskill.cli import main
 
     assert main(["train-policy", "--reward", "shaped", "--steps", "8"]) == 2
     assert "unknown reward 'shaped'; choose one of: sparse, dense" in capsys.readouterr().err
@@ -40,7 +40,7 @@ def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
     ckpt = Path(tiny_stock_checkpoint(tmp_path / "drem.pt", env_id="PlugCharger-v1"))
     monkeypatch.setattr(checkpoints, "default_checkpoint",
                         lambda task, image_only=False: ckpt if task == "PlugCharger-v1" else tmp_path / "none.pt")
-    sparse = RLConfig.preset("light", task="PlugCharger-v1", reward="sparse")
+    sparse = RLConfig.from_preset("light", task="PlugCharger-v1", reward="sparse")
     assert not sparse.uses_ft
     env, vice = make_env(sparse, for_eval=True)
     try:
@@ -53,7 +53,7 @@ def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
         assert float(r[0]) == 0.0
     finally:
         env.close()
-    env, _ = make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="drem"), for_eval=True)
+    env, _ = make_env(RLConfig.from_preset("light", task="PlugCharger-v1", reward="drem"), for_eval=True)
     try:
         env.reset(seed=0)
         _, r, _, _, info = env.step(torch.zeros(1, 7))
@@ -61,7 +61,7 @@ def test_sac_env_on_a_stock_task(tmp_path, monkeypatch):
     finally:
         env.close()
     with pytest.raises(ValueError, match=r"PlugCharger-v1 the rewards are \['sparse', 'drem'\].*'engineered'"):
-        make_env(RLConfig.preset("light", task="PlugCharger-v1", reward="engineered"))
+        make_env(RLConfig.from_preset("light", task="PlugCharger-v1", reward="engineered"))
 
 
 def test_dense_is_maniskills_own_on_the_stock_tasks_that_define_one():
@@ -72,7 +72,7 @@ def test_dense_is_maniskills_own_on_the_stock_tasks_that_define_one():
     from drem_maniskill.rl.run_env import make_env
 
     assert "dense" in supported_rewards("StackCube-v1") and "dense" not in supported_rewards("PlugCharger-v1")
-    env, _ = make_env(RLConfig.preset("state", task="StackCube-v1", reward="dense"), for_eval=True)
+    env, _ = make_env(RLConfig.from_preset("state", task="StackCube-v1", reward="dense"), for_eval=True)
     try:
         obs, _ = env.reset(seed=0)
         _, r, _, _, info = env.step(torch.zeros(1, 7))
@@ -93,7 +93,7 @@ def test_a_run_can_name_its_own_reward_checkpoint(tmp_path):
     from tests.conftest import tiny_checkpoint
 
     ckpt = tiny_checkpoint(tmp_path / "drem.pt", "PegInHole-v1")
-    env, _ = make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=ckpt), for_eval=True)
+    env, _ = make_env(RLConfig.from_preset("state", reward="drem", reward_checkpoint=ckpt), for_eval=True)
     try:
         loaded = env.unwrapped.drem_reward
         assert torch.equal(loaded.h_goal, torch.load(ckpt, weights_only=False)["weights"]["h_goal"])
@@ -101,9 +101,10 @@ def test_a_run_can_name_its_own_reward_checkpoint(tmp_path):
     finally:
         env.close()
     with pytest.raises(FileNotFoundError, match=r"nowhere\.pt not found.*--reward-checkpoint PATH"):
-        make_env(RLConfig.preset("state", reward="drem", reward_checkpoint=str(tmp_path / "nowhere.pt")), for_eval=True)
+        make_env(RLConfig.from_preset("state", reward="drem", reward_checkpoint=str(tmp_path / "nowhere.pt")),
+                 for_eval=True)
     with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):
-        make_env(RLConfig.preset("state", reward="engineered", reward_checkpoint=ckpt), for_eval=True)
+        make_env(RLConfig.from_preset("state", reward="engineered", reward_checkpoint=ckpt), for_eval=True)
 
 
 def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mislead(tmp_path):
@@ -119,7 +120,7 @@ def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mi
     ckpt = tiny_checkpoint(tmp_path / "drem.pt", "PegInHole-v1")
     rewards = {}
     for form in ("paper", "shifted"):
-        config = RLConfig.preset("state", reward="drem", reward_checkpoint=ckpt, drem_form=form)
+        config = RLConfig.from_preset("state", reward="drem", reward_checkpoint=ckpt, drem_form=form)
         env, _ = make_env(config, for_eval=True)
         try:
             env.reset(seed=5)
@@ -131,13 +132,13 @@ def test_the_shifted_drem_form_pays_r_minus_one_and_is_refused_where_it_would_mi
     torch.testing.assert_close(rewards["shifted"], rewards["paper"] - 1.0)
     assert (rewards["shifted"] <= 0).all()
     # Unset, the form follows termination: episodes that end at success get the shifted one.
-    assert RLConfig.preset("state", reward="drem").drem_form_used == "shifted"
-    assert RLConfig.preset("state", reward="drem", terminate_on_success=False).drem_form_used == "paper"
-    assert RLConfig.preset("paper", reward="drem").drem_form_used == "paper"
+    assert RLConfig.from_preset("state", reward="drem").drem_form_used == "shifted"
+    assert RLConfig.from_preset("state", reward="drem", terminate_on_success=False).drem_form_used == "paper"
+    assert RLConfig.from_preset("paper", reward="drem").drem_form_used == "paper"
     with pytest.raises(ValueError, match="unknown drem_form 'negative'.*'paper', 'shifted'"):
-        RLConfig.preset("state", drem_form="negative")
+        RLConfig.from_preset("state", drem_form="negative")
     with pytest.raises(ValueError, match="for the DREM rewards, not 'engineered'"):
-        make_env(RLConfig.preset("state", reward="engineered", drem_form="shifted"), for_eval=True)
+        make_env(RLConfig.from_preset("state", reward="engineered", drem_form="shifted"), for_eval=True)
     with pytest.raises(ValueError, match="drem-guarded pays only the paper's form"):
-        config = RLConfig.preset("state", reward="drem-guarded", reward_checkpoint=ckpt, drem_form="shifted")
+        config = RLConfig.from_preset("state", reward="drem-guarded", reward_checkpoint=ckpt, drem_form="shifted")
         make_env(config, for_eval=True)

@@ -38,9 +38,9 @@ class TinyCameraEnv(gym.Env):
 def _model(tmp_path, shared: bool, **overrides):
     # One gradient step per env step, so that 300 steps are enough to learn the bandit.
     overrides = dict(train_freq=1, **overrides)
-    config = RLConfig.preset("light", cameras=("fixed_camera",), image_size=16, policy_ft=False, shared_encoder=shared,
-                             batch_size=16, learning_starts=32, buffer_size=200, steps=200, out=str(tmp_path),
-                             device="cpu", **overrides)
+    config = RLConfig.from_preset("light", cameras=("fixed_camera",), image_size=16, policy_ft=False,
+                                  shared_encoder=shared, batch_size=16, learning_starts=32, buffer_size=200,
+                                  steps=200, out=str(tmp_path), device="cpu", **overrides)
     model = build_sac(config, _vec())
     model.learn(total_timesteps=40)  # fills the buffer past learning_starts, a few gradient steps
     return model
@@ -127,15 +127,12 @@ def test_both_ways_of_sharing_at_once_are_refused():
         RLConfig(shared_encoder=True, share_features_extractor=True)
 
 
-def test_the_image_presets_share_the_encoder_and_older_runs_keep_their_layout(tmp_path):
-    assert RLConfig.preset("light").shared_encoder and RLConfig.preset("paper").shared_encoder
+def test_the_image_presets_share_the_encoder_and_the_state_preset_keeps_sb3s_layout(tmp_path):
+    assert RLConfig.from_preset("light").shared_encoder and RLConfig.from_preset("paper").shared_encoder
     # A plain RLConfig() is the light preset without its learnability settings (LEARNABLE) and its overlapped env:
     # those are the presets' choices, not the dataclass defaults.
-    plain, light = RLConfig().to_dict(), RLConfig.preset("light").to_dict()
+    plain, light = RLConfig().to_dict(), RLConfig.from_preset("light").to_dict()
     assert RLConfig().preset == "light"
     assert {k: light[k] for k in light if light[k] != plain[k]} == dict(
         terminate_on_success=True, obs_norm=["state", "ft"], action_scale=0.5, overlap_env=True)
-    assert not RLConfig.preset("state").shared_encoder  # the comparison's runs: SB3's layout
-    old = RLConfig.preset("light").to_dict()
-    del old["shared_encoder"]
-    assert RLConfig.from_dict(old).shared_encoder is False
+    assert not RLConfig.from_preset("state").shared_encoder  # the comparison's runs: SB3's layout

@@ -59,7 +59,7 @@ def test_every_trial_gets_its_folder_and_the_train_policy_flags(tmp_path):
         ("state", "PegInHole-v1", 1, "sparse")]
     for c in configs:
         assert (c.steps, c.eval_every, c.train_bf16) == (300, 50, False)
-        assert c.cameras == RLConfig.preset(c.preset).cameras
+        assert c.cameras == RLConfig.from_preset(c.preset).cameras
     (one,) = plan_trials(["PegInHole-v1"], ["drem"], [2], 300, tmp_path)
     assert one.out == str(tmp_path / "PegInHole-v1" / "drem" / "seed2") and one.preset == "light"
 

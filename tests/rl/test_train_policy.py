@@ -20,8 +20,9 @@ from drem_maniskill.rl.train_policy import (
 
 
 def _tiny(tmp_path, reward="dense", **kw) -> RLConfig:
-    return RLConfig.preset("light", task="PegInHole-v1", reward=reward, seed=0, steps=64, learning_starts=16,
-                           batch_size=16, eval_every=32, eval_episodes=2, threads=1, out=str(tmp_path / "run"), **kw)
+    return RLConfig.from_preset("light", task="PegInHole-v1", reward=reward, seed=0, steps=64, learning_starts=16,
+                                batch_size=16, eval_every=32, eval_episodes=2, threads=1, out=str(tmp_path / "run"),
+                                **kw)
 
 
 @pytest.mark.slow
@@ -109,14 +110,15 @@ def test_resume_compares_the_drem_form_as_the_run_pays_it():
     from drem_maniskill.rl.config import RLConfig
     from drem_maniskill.rl.train_policy import _check_resumable
 
-    saved = RLConfig.preset("state", reward="engineered", drem_form="paper")
-    _check_resumable(saved, RLConfig.preset("state", reward="engineered", steps=80_000))  # the form means nothing here
-    drem = RLConfig.preset("state", reward="drem", drem_form="shifted")
-    _check_resumable(drem, RLConfig.preset("state", reward="drem"))  # unset: shifted, as episodes end at success
+    saved = RLConfig.from_preset("state", reward="engineered", drem_form="paper")
+    # The form means nothing here.
+    _check_resumable(saved, RLConfig.from_preset("state", reward="engineered", steps=80_000))
+    drem = RLConfig.from_preset("state", reward="drem", drem_form="shifted")
+    _check_resumable(drem, RLConfig.from_preset("state", reward="drem"))  # unset: shifted, as episodes end at success
     with pytest.raises(ValueError, match="drem_form: saved 'shifted', now 'paper'"):
-        _check_resumable(drem, RLConfig.preset("state", reward="drem", drem_form="paper"))
+        _check_resumable(drem, RLConfig.from_preset("state", reward="drem", drem_form="paper"))
     with pytest.raises(ValueError, match="gamma: saved 0.95, now 0.9"):
-        _check_resumable(saved, RLConfig.preset("state", reward="engineered", gamma=0.9))
+        _check_resumable(saved, RLConfig.from_preset("state", reward="engineered", gamma=0.9))
 
 
 def test_a_run_pins_its_drem_checkpoint_and_refuses_to_resume_on_another(tmp_path):
@@ -130,7 +132,8 @@ def test_a_run_pins_its_drem_checkpoint_and_refuses_to_resume_on_another(tmp_pat
     shutil.copy(tiny_checkpoint(tmp_path / "a", "PegInHole-v1"), ckpt)
     run = tmp_path / "run"
     run.mkdir()
-    config = RLConfig.preset("state", task="PegInHole-v1", reward="drem", reward_checkpoint=str(ckpt), out=str(run))
+    config = RLConfig.from_preset("state", task="PegInHole-v1", reward="drem", reward_checkpoint=str(ckpt),
+                                  out=str(run))
     pinned = pin_reward_checkpoint(config, run, resuming=False)
     assert pinned == dict(path=str(ckpt), sha256=file_sha256(ckpt))
     assert json.loads((run / "reward_checkpoint.json").read_text()) == pinned
@@ -141,7 +144,7 @@ def test_a_run_pins_its_drem_checkpoint_and_refuses_to_resume_on_another(tmp_pat
         pin_reward_checkpoint(config, run, resuming=True)
     assert pin_reward_checkpoint(config, run, resuming=False)["sha256"] == file_sha256(ckpt)  # a fresh run re-pins
 
-    engineered = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", out=str(tmp_path / "eng"))
+    engineered = RLConfig.from_preset("state", task="PegInHole-v1", reward="engineered", out=str(tmp_path / "eng"))
     (tmp_path / "eng").mkdir()
     assert pin_reward_checkpoint(engineered, tmp_path / "eng", resuming=False) is None
     assert not (tmp_path / "eng" / "reward_checkpoint.json").exists()
@@ -172,8 +175,8 @@ def test_train_freq_sets_the_update_ratio_and_bf16_runs_the_gradient_step_in_bfl
 
     updates, dtypes = {}, {}
     for name, overrides in dict(preset={}, quarter=dict(train_freq=4, train_bf16=True)).items():
-        config = RLConfig.preset("light", task="PegInHole-v1", reward="engineered", steps=48, learning_starts=16,
-                                 batch_size=8, threads=1, out=str(tmp_path / name), **overrides)
+        config = RLConfig.from_preset("light", task="PegInHole-v1", reward="engineered", steps=48, learning_starts=16,
+                                      batch_size=8, threads=1, out=str(tmp_path / name), **overrides)
         env, _ = make_env(config)
         venv = ManiSkillDictVecEnv(env, max_episode_steps(config.task))
         try:
@@ -215,9 +218,11 @@ def test_an_overlapped_run_steps_its_env_in_a_child_process_closes_it_and_resume
                 raise KeyboardInterrupt
             return True
 
-    config = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", steps=64, learning_starts=16,
-                             batch_size=16, eval_every=32, eval_episodes=2, overlap_env=True, out=str(tmp_path / "run"))
-    assert config.overlap_env_used and not RLConfig.preset("state", reward="vice", overlap_env=True).overlap_env_used
+    config = RLConfig.from_preset("state", task="PegInHole-v1", reward="engineered", steps=64, learning_starts=16,
+                                  batch_size=16, eval_every=32, eval_episodes=2, overlap_env=True,
+                                  out=str(tmp_path / "run"))
+    vice = RLConfig.from_preset("state", reward="vice", overlap_env=True)
+    assert config.overlap_env_used and not vice.overlap_env_used
     with pytest.raises(KeyboardInterrupt):
         train_policy(config, callbacks=[Interrupt()])
     assert len(seen["children"]) == 1 and seen["deferred"] is not None

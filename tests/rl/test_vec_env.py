@@ -113,7 +113,7 @@ def test_the_env_in_a_child_process_steps_like_the_env_in_this_one():
     from drem_maniskill.rl.run_env import make_local_vec_env
     from drem_maniskill.rl.vec_env import SubprocDictVecEnv
 
-    config = RLConfig.preset("state", task="PegInHole-v1", reward="engineered", overlap_env=True)
+    config = RLConfig.from_preset("state", task="PegInHole-v1", reward="engineered", overlap_env=True)
     here, _ = make_local_vec_env(config)
     child = SubprocDictVecEnv(make_local_vec_env, config)
     try:
@@ -140,7 +140,7 @@ def test_the_env_in_a_child_process_steps_like_the_env_in_this_one():
     finally:
         here.close()
         child.close()
-    missing = RLConfig.preset("state", task="PegInHole-v1", reward="drem", reward_checkpoint="/nonexistent/drem.pt",
-                              overlap_env=True)
+    missing = RLConfig.from_preset("state", task="PegInHole-v1", reward="drem",
+                                   reward_checkpoint="/nonexistent/drem.pt", overlap_env=True)
     with pytest.raises(FileNotFoundError, match="/nonexistent/drem.pt"):
         SubprocDictVecEnv(make_local_vec_env, missing)

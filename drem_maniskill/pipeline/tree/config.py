@@ -1,14 +1,9 @@
 """``SamplerConfig``: the paper's backward-sampling settings, and the settings of every extra phase by name.
 
-Two forms, both read by ``SamplerConfig.from_dict``:
-
-* nested (``to_dict``, recipes, tree headers from now on): the core fields flat, and ``phases`` by name,
-  ``{"num_children": 500, "phases": {"face": {"depth": 8, "step": 0.0015}, "goal_presses": {"count": 500}}}``;
-* flat (older tree and checkpoint headers, preset overrides): ``<phase>_<field>`` keys beside the core ones,
-  ``{"face_depth": 8, "face_step": 0.0015, "goal_presses": 500}`` (``Phase.legacy`` names the exceptions).
-
-``phases`` always holds every registered phase; one runs when its size field (``depth``, ``children`` or ``count``,
-``Phase.size``) is above 0, and the defaults have them all at 0: the paper's sampler.
+Its dict form (``to_dict``, ``from_dict``; recipes' ``[sampler]``, tree headers) holds the core fields at the top and
+``phases`` by name, ``{"num_children": 500, "phases": {"face": {"depth": 8, "step": 0.0015}}}``. ``phases`` always
+holds every registered phase; one runs when its size field (``depth``, ``children`` or ``count``, ``Phase.size``) is
+above 0, and the defaults have them all at 0: the paper's sampler.
 """
 
 from __future__ import annotations
@@ -96,21 +91,15 @@ class SamplerConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "SamplerConfig":
-        """A config from its nested form, its flat form, or a mix; an unknown key is a ValueError naming it."""
+        """A config from its dict form; an unknown key is a ValueError naming it and the valid ones."""
         core = [f.name for f in fields(cls) if f.name != "phases"]
-        nested = {name: value if isinstance(value, dict) else asdict(value)
+        unknown = [key for key in d if key not in core and key != "phases"]
+        if unknown:
+            raise ValueError(f"unknown sampler setting {unknown[0]!r}; valid ones: {core + ['phases']}, a phase's "
+                             f"settings under phases.<name> (e.g. phases.face.depth; phases: {list(PHASES)})")
+        phases = {name: value if isinstance(value, dict) else asdict(value)
                   for name, value in (d.get("phases") or {}).items()}
-        for key, value in d.items():
-            if key in core or key == "phases":
-                continue
-            name, setting = _flat_owner(key, core)
-            given = nested.setdefault(name, {})
-            if setting in given and _phase_settings(name, {setting: given[setting]}) != _phase_settings(
-                    name, {setting: value}):
-                raise ValueError(f"sampler phase {name!r}: {setting!r} given twice, as {given[setting]!r} (nested) "
-                                 f"and {value!r} ({key!r})")
-            given[setting] = value
-        return cls(**{k: d[k] for k in core if k in d}, phases=nested)
+        return cls(**{k: d[k] for k in core if k in d}, phases=phases)
 
     def to_dict(self) -> dict:
         """The nested form, JSON-ready: every phase, in the order they run."""
@@ -121,7 +110,7 @@ class SamplerConfig:
     @classmethod
     def preset(cls, name: str, **overrides) -> "SamplerConfig":
         """``paper`` (M = 500), ``quick`` (M = 24, for minutes-long runs) or ``tiny``, with ``overrides`` (any key
-        ``from_dict`` reads)."""
+        ``from_dict`` reads; ``phases`` by name)."""
         if name not in PRESETS:
             raise ValueError(f"unknown sampler preset {name!r}; choose one of {list(PRESETS)}")
         return cls.from_dict({**PRESETS[name], **overrides})
@@ -152,18 +141,6 @@ def _phase_settings(name: str, value: Any):
         raise ValueError(f"unknown setting {unknown[0]!r} of sampler phase {name!r}; valid ones: {list(valid)}")
     # Lists (JSON, TOML) become the tuples the settings declare.
     return cls(**{k: tuple(v) if isinstance(valid[k].default, tuple) else v for k, v in value.items()})
-
-
-def _flat_owner(key: str, core: list) -> tuple:
-    """The phase and setting a flat-form key names, or a ValueError naming it and the valid keys."""
-    for name, phase in PHASES.items():
-        if key in phase.legacy:
-            return name, phase.legacy[key]
-        setting = key[len(name) + 1:] if key.startswith(name + "_") else None
-        if setting in {f.name for f in fields(phase.config)}:
-            return name, setting
-    flat = [phase.flat_key(f.name) for phase in PHASES.values() for f in fields(phase.config)]
-    raise ValueError(f"unknown sampler setting {key!r}; valid ones: {core + ['phases']}, or the flat phase keys {flat}")
 
 
 def _jsonable(d: dict) -> dict:

@@ -3,9 +3,9 @@ helpers the phases share."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 import torch
@@ -42,12 +42,6 @@ class Phase:
     """Whether it needs the task's socket geometry (``EnvAdapter.socket_geometry``)."""
     growable: bool = False
     """Whether a finished tree can gain it by a resume; once begun, it resumes only with the same settings."""
-    legacy: Mapping[str, str] = field(default_factory=dict)
-    """Keys of the flat config form (older headers) that are not ``<name>_<field>``: key -> field."""
-
-    def flat_key(self, name: str) -> str:
-        """The flat-form key of one of its settings."""
-        return next((k for k, v in self.legacy.items() if v == name), f"{self.name}_{name}")
 
     def switch(self) -> str:
         """Where its size is set: the recipe key and the command-line flag."""

@@ -4,8 +4,9 @@ face's edge and down beside the socket's block (not in the paper; our insertion 
 The backward loop's children of the seed at the opening land anywhere on the face within a random action of it, all
 one depth from that seed, so the reward learns no lead along the face to the opening. Each face lineage starts at that
 seed (the entry, ``tree_file.face_entry_depth``) and keeps the child that slid farthest along its own direction,
-pressing on the face a few millimetres per depth. SAC also found the part lowered along the block's side, which no
-other phase reaches: the side lineages go on from the face lineages' last seeds, steeply down.
+pressing on the face a few millimetres per depth. No other phase reaches the part lowered along the block's side,
+where a policy would find a reward that values it arbitrarily: the side lineages go on from the face lineages' last
+seeds, steeply down.
 
 The child kept is the one farthest along the lineage's direction, less ``rotation_weight`` metres per radian it
 turned (the part stays upright), and out of the opening (``caught_penalty``). Children that went into the opening are

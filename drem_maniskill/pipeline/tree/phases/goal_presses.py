@@ -2,7 +2,7 @@
 
 A demo that descends slowly ends as soon as the part is far enough in, before it reaches the opening's floor, and its
 goal's children (small moves, ``expert_step_scale``) barely touch the floor, while a policy that inserts goes on
-pushing: a tree without such presses put a pressed insertion far from the goal. These children push the inserted part
+pushing: a tree without such presses puts a pressed insertion far from the goal. These children push the inserted part
 down with up to the arm's full step, sideways and twisting within the goal's own children's range (full-range
 sideways and twisting actions lever the part up and out of a tight opening): still inserted, one step from the goal.
 """
@@ -46,6 +46,6 @@ def sample_goal_presses(ctx: PhaseContext, config: GoalPressConfig) -> None:
 
 PHASE = Phase(
     name="goal_presses", config=GoalPressConfig, sample=sample_goal_presses, size="count",
-    counter="goal_press_completed", growable=True, legacy={"goal_presses": "count"},
+    counter="goal_press_completed", growable=True,
     labels="1: a step from the goal; never seeds",
 )

@@ -1,7 +1,7 @@
 """The outward phase: lineages leaving the start region, away from the expert's path (not in the paper).
 
-The paper's tree is a tube around the expert, so a reward trained on it values states off the tube arbitrarily, and
-SAC found such states that it pays like an insertion (the part pressed on the floor beside the socket). Each outward
+The paper's tree is a tube around the expert, so a reward trained on it values states off the tube arbitrarily: a
+policy can find one it is paid for like an insertion (the part pressed on the floor beside the socket). Each outward
 lineage starts at the start-region seed and keeps the child that went farthest along its own direction, so the tree
 gains states beside and below the start region, labelled by their depth: farther from the goal than the start.
 """

@@ -1,10 +1,11 @@
 """The push children: full-range random actions from every face and side seed (not in the paper; our tasks).
 
-Lineage steps of a few millimetres press lightly (the face and side nodes read under 20 N at the wrist), so the only
-hard presses in a tree would be the goal's children pushing on the opening's floor, and a reward trained on it paid a
-part pushed hard on the face or against the block's side like an insertion. These children push the part into the
-face, the edge and the side with tens of newtons, labelled where they are: as far from the goal as the seed they left,
-plus one. Those that fall into the opening are not kept: they may be a step from the goal.
+Lineage steps of a few millimetres press lightly (the face and side nodes read under 20 N at the wrist), so without
+these children the only hard presses in a tree are the goal's children pushing on the opening's floor, and a reward
+trained on it can pay a part pushed hard on the face or against the block's side like an insertion. These children
+push the part into the face, the edge and the side with tens of newtons, labelled where they are: as far from the
+goal as the seed they left, plus one. Those that fall into the opening are not kept: they may be a step from the
+goal.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Every other phase keeps the part upright there (the face and side lineages penalise turning, the backward loop's
 steps near the goal are a fraction of the rotation range), so a reward trained on them values a turned part near the
-opening arbitrarily, and SAC found a part hovering off the axis, turned 55 deg, paid almost as an insertion. Each
+opening arbitrarily, and may pay a part hovering off the axis, turned far, almost as an insertion. Each
 lineage starts at a seed near the opening (``HOVER_DEPTHS`` above it, ``FACE_STEPS`` along the face lineages) and
 keeps the child that turned farthest about its own axis, out of the opening; children that went into the opening are
 not kept. Step ``k`` is labelled the lineage's first label plus ``k``: one step per rotation step of the controller.
