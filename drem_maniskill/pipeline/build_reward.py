@@ -29,6 +29,7 @@ from typing import Callable, Optional, Union
 from drem_maniskill.drem.checkpoint import REWARDS_DIRS
 from drem_maniskill.pipeline.recipe import FULL, SECTION_DEFAULTS, Recipe, RecipeError, load_recipe
 from drem_maniskill.utils.atomic import atomic_path, copy_file, write_json
+from drem_maniskill.utils.lock import folder_lock
 
 DEFAULT_OUT = Path("outputs") / "build_reward"
 
@@ -109,9 +110,16 @@ def build_reward(task: str, scale: str = FULL, out: Optional[Union[str, Path]] =
                           f"as written); this build is at scale {scale!r}: drop publish, or build at {FULL!r}")
     r = load_recipe(task, scale, recipe)
     work = Path(out) if out is not None else DEFAULT_OUT / task / scale
-    work.mkdir(parents=True, exist_ok=True)
+    # Two builds in one folder would both append to its partial tree and training state.
+    with folder_lock(work, 0.0, "built", "the build resumes from its last finished stage", "build-reward"):
+        return _build(r, work, publish)
+
+
+def _build(r: Recipe, work: Path, publish: bool) -> Path:
+    """``build_reward``'s stages in ``work``, run while its lock is held."""
+    task = r.task
     check_same_recipe(work / "recipe.json", r)
-    _log(task, f"recipe {r.source}, scale {scale}; working in {work}")
+    _log(task, f"recipe {r.source}, scale {r.scale}; working in {work}")
     expert = demo_stage(r, work)
     tree = stage(task, "sample", STAGES["sample"].path(work), lambda p: _sample(str(expert), str(p), r))
     trees = [stage(task, f"sample episode {k}", STAGES["sample_episodes"].path(work, k),

@@ -18,13 +18,11 @@ The run loop names no reward and no algorithm: both come from their tables by th
 from __future__ import annotations
 
 import csv
-import fcntl
 import hashlib
 import json
 import os
 import shutil
 import time
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -43,6 +41,7 @@ from drem_maniskill.rl.run_policy import deterministic_policy, latest_checkpoint
 from drem_maniskill.rl.vec_env import SubprocDictVecEnv
 from drem_maniskill.utils.atomic import atomic_path, write_json
 from drem_maniskill.utils.episodes import max_episode_steps
+from drem_maniskill.utils.lock import folder_lock
 from drem_maniskill.utils.progress import progress_bar
 
 EVAL_COLUMNS = ("steps", "success_rate", "mean_return", "wall_time")
@@ -244,34 +243,10 @@ def train_policy(config: RLConfig, callbacks: Sequence[BaseCallback] = ()) -> di
 LOCK_WAIT_S = 120.0
 
 
-@contextmanager
 def run_lock(run_dir, wait_s: Optional[float] = None):
     """Hold ``run_dir/.lock`` for one training process; another waits up to ``wait_s`` (LOCK_WAIT_S), then fails."""
-    wait_s = LOCK_WAIT_S if wait_s is None else wait_s
-    path = Path(run_dir) / ".lock"
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        deadline, told = time.monotonic() + wait_s, False
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                holder = path.read_text().strip() or "unknown"
-                if time.monotonic() >= deadline:
-                    raise RuntimeError(
-                        f"{run_dir} is being trained by another process (pid {holder}); stop that process or let "
-                        f"it finish, then rerun: this run resumes from its last checkpoint") from None
-                if not told:
-                    print(f"[train-policy] {run_dir} is being trained by pid {holder}; waiting up to {wait_s:.0f} s",
-                          flush=True)
-                    told = True
-                time.sleep(0.25)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, str(os.getpid()).encode(), 0)
-        yield
-    finally:
-        os.close(fd)  # closing the descriptor releases the lock, also when the process is killed
+    return folder_lock(run_dir, LOCK_WAIT_S if wait_s is None else wait_s, "trained",
+                       "this run resumes from its last checkpoint", "train-policy")
 
 
 def _train_locked(config: RLConfig, algo, callbacks: Sequence[BaseCallback]) -> dict:

@@ -200,3 +200,22 @@ def test_scene_swap_negatives_are_written_per_tree_and_trained_on(tmp_path):
             counts.append(len(depth))
     assert header["negatives"] == dict(files=["negatives_0.h5", "negatives_1.h5"], nodes=sum(counts))
     assert header["modalities"] == ["fixed", "poses"] and header["model"]["poses_size"] > 0
+
+
+def test_a_second_build_in_a_busy_work_folder_fails_naming_the_first(tmp_path):
+    import subprocess
+    import sys
+
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import time; from drem_maniskill.utils.lock import folder_lock\n"
+                               f"with folder_lock({str(tmp_path)!r}, 0, 'built', '', 'test'):\n"
+                               "    print('held', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(RuntimeError, match=f"being built by another process \\(pid {holder.pid}\\)"):
+            build_reward("PegInHole-v1", scale="tiny", out=tmp_path)
+        assert not (tmp_path / "recipe.json").exists()  # nothing written beside the first build
+    finally:
+        holder.kill()
+        holder.wait()
