@@ -32,6 +32,8 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from general_recipe import add_build_time  # experiments/ is the script's folder
+
 ORDER = ("paper", "expert_step", "slowed_demo", "outward", "rounds", "phases", "shipped")
 SCALES = {"pilot": dict(num_children=100, iterations=2000), "full": dict(num_children=500, iterations=20000)}
 THREE_ROUNDS = {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}
@@ -88,7 +90,7 @@ def build(task: str, variant: str, scale: str, out: str) -> dict:
     work = Path(out) / scale / task / variant
     start = time.time()
     checkpoint = build_reward(task, scale="full", out=work, recipe=variant_recipe(task, variant, scale))
-    seconds = _add_build_time(work, time.time() - start)
+    seconds = add_build_time(work, time.time() - start)
     quality = json.loads((work / "examination" / "quality.json").read_text())
     result = dict(task=task, variant=variant, scale=scale, recipe=variant_recipe(task, variant, scale),
                   build_seconds=round(seconds), checkpoint=str(checkpoint),
@@ -101,13 +103,6 @@ def build(task: str, variant: str, scale: str, out: str) -> dict:
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(result, indent=1) + "\n")
     return result
-
-
-def _add_build_time(work: Path, seconds: float) -> float:
-    path = work / "build_seconds.json"
-    total = seconds + (json.loads(path.read_text())["seconds"] if path.is_file() else 0.0)
-    path.write_text(json.dumps({"seconds": total}) + "\n")
-    return total
 
 
 def sac_configs(jobs, scale: str, out: str, seeds, steps: int) -> list:
