@@ -1,7 +1,7 @@
 # The README's two commands:
 #   make demo   -- run the demo, writing to outputs/demo
-#   make test   -- run the test suite; extra pytest arguments via
-#                  make test PYTEST_ARGS="-m 'not slow' -x"
+#   make test   -- run the test suite, one pytest-xdist worker per core; extra pytest
+#                  arguments via make test PYTEST_ARGS="-m 'not slow' -x"
 # Both first run `setup` (scripts/setup.sh): venv at .venv, editable install,
 # Vulkan for SAPIEN.  setup is cheap when nothing changed.
 
@@ -17,4 +17,4 @@ demo: setup
 	$(VENV)/bin/drem-maniskill demo --out outputs/demo
 
 test: setup
-	$(VENV)/bin/python -m pytest -q $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest -q -n auto --dist loadgroup $(PYTEST_ARGS)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import gymnasium as gym
 import pytest
 import torch
@@ -15,6 +17,9 @@ from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
 from drem_maniskill.version import __version__
 
 _cache: dict = {}
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    torch.set_num_threads(1)  # one xdist worker per core: two torch threads each would oversubscribe it
 
 
 def make_env(task: str, **kwargs):
