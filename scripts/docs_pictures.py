@@ -21,10 +21,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default="docs/images")
     parser.add_argument("--style", nargs="+", default=["lean", "full"])
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS))
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    for task in TASKS:
+    for task in args.tasks:
         for style in args.style:
             env = gym.make(task, obs_mode="rgb", render_style=style)
             policy = get_policy("expert", env)

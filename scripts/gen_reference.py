@@ -305,7 +305,7 @@ def _default_of(cls, key: str):
 
 
 def general_recipe() -> list:
-    """What ``build-reward --recipe default`` builds with: ``GENERAL_DEFAULTS`` as a recipe file."""
+    """What a task without a recipe file builds with: ``GENERAL_DEFAULTS`` as a recipe file."""
     recipe = importlib.import_module(RECIPE_MODULE)
     toml = []
 
@@ -321,9 +321,10 @@ def general_recipe() -> list:
 
     for name, value in recipe.GENERAL_DEFAULTS.items():
         table([name], value)
-    return (["## A task without a recipe: `--recipe default`", "",
-             f"`drem-maniskill build-reward --task <id> --recipe {recipe.GENERAL}` builds with the recipe below "
-             f"(`{RECIPE_MODULE}.GENERAL_DEFAULTS`); every key it leaves out takes its default above.", "",
+    return (["## The general recipe: a task without a recipe file", "",
+             "`drem-maniskill build-reward --task <id>` builds a task that has no `tasks/<id>/recipe.toml` with the "
+             f"recipe below (`{RECIPE_MODULE}.GENERAL_DEFAULTS`; `--recipe {recipe.GENERAL}` builds any task with "
+             "it); every key it leaves out takes its default above.", "",
              "```toml"] + toml[:-1] + ["```", ""])
 
 

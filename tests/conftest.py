@@ -8,7 +8,7 @@ import gymnasium as gym
 import pytest
 import torch
 
-from drem_maniskill.drem.checkpoint import save_checkpoint
+from drem_maniskill.drem.checkpoint import default_checkpoint, save_checkpoint
 from drem_maniskill.drem.model import DREMModel, ModelConfig
 from drem_maniskill.envs import TASKS  # noqa: F401  (the tests' task parameter; importing registers the tasks)
 from drem_maniskill.experts import get_policy, record_expert, rollout
@@ -17,6 +17,8 @@ from drem_maniskill.pipeline.train_reward import TrainConfig, train_reward
 from drem_maniskill.version import __version__
 
 _cache: dict = {}
+# Our tasks whose DREM reward ships in rewards/<id>/ (a task added to TASKS ships one once it is built).
+SHIPPED_TASKS = tuple(task for task in TASKS if default_checkpoint(task).is_file())
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     torch.set_num_threads(1)  # one xdist worker per core: two torch threads each would oversubscribe it
@@ -28,6 +30,11 @@ def make_env(task: str, **kwargs):
     if key not in _cache:
         _cache[key] = gym.make(task, **kwargs)
     return _cache[key]
+
+
+def pytest_collection_modifyitems(config, items):
+    """The slow tests first: with one xdist worker per core, a long test left for last would run alone at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -22,6 +22,9 @@ from drem_maniskill.envs.insertion_base import InsertionEnv
 TASK_FILES = {
     "PegInHole-v1": "peg_in_hole",
     "USBInsertion-v1": "usb_insertion",
+    "SquarePegInHole-v1": "square_peg_in_hole",
+    "DPegInHole-v1": "d_peg_in_hole",
+    "HexPegInTiltedHole-v1": "hex_peg_in_tilted_hole",
 }
 
 

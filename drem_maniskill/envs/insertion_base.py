@@ -26,13 +26,18 @@ from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.building.ground import build_ground
-from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
+from mani_skill.utils.geometry.rotation_conversions import (
+    quaternion_invert,
+    quaternion_multiply,
+    quaternion_to_matrix,
+)
 from mani_skill.utils.structs import Actor, Pose
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
 from drem_maniskill.drem.mode import DREMRewardMode
 from drem_maniskill.envs.agent import FULL_URDF, HeldPart, PandaInsertion
 from drem_maniskill.envs.ft_sensor import WristFTSensor
+from drem_maniskill.envs.geometry import y_rotation
 from drem_maniskill.envs.insertion_rewards import InsertionRewards
 from drem_maniskill.envs.placement import SocketPlacement, yaw_quat
 from drem_maniskill.envs.task_state import TaskState
@@ -68,6 +73,15 @@ class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState,
     side_contact: float = 0.0  # tip-to-axis distance along the socket's x where the part touches the block's side
     yaw_symmetry: int = 0  # 0: round part (yaw free); k: part repeats every 2*pi/k
     max_yaw_error: float = np.pi  # insertion tolerance on yaw (keyed parts)
+    # The opening's axis leans from vertical by this (rad), towards the robot, and the block's base sits ``socket_lift``
+    # (m) above the floor (``_block_in_socket_actor``, where a tilted task draws its block). Everything in the socket
+    # frame (the success test, the policies, the start region) follows the axis.
+    socket_tilt: float = 0.0
+    socket_lift: float = 0.0
+    # PhysX's contact offset (m). A small one keeps the many socket pieces from all generating contacts at once; one
+    # wider than the part's radial gap lets the part's bottom edge catch on the opening's rim, centred and square to it
+    # (a 0.75 mm gap at 4 mm: 3 of 20 expert episodes stuck there; at 1 mm, none).
+    contact_offset: float = 0.004
     # Regions of the tip around the opening (socket frame), which the sampler's extra phases and the tree's report read
     # (``EnvAdapter.socket_geometry``). The blocks of both tasks are solid beyond ``opening_radius`` (the USB port's
     # housing reaches 8.75 mm, the plug's shell 2.25 mm more), so a tip lower than ``inserted_height`` and within it is
@@ -141,12 +155,11 @@ class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState,
     # ------------------------------------------------------------------ configuration
     @property
     def _default_sim_config(self):
-        # Paper: torques at 100 Hz, policy at 5 Hz. A small contact offset keeps the many
-        # socket pieces from all generating contacts at once.
+        # Paper: torques at 100 Hz, policy at 5 Hz.
         return SimConfig(
             sim_freq=100,
             control_freq=5,
-            scene_config=SceneConfig(contact_offset=0.004, solver_position_iterations=20),
+            scene_config=SceneConfig(contact_offset=self.contact_offset, solver_position_iterations=20),
         )
 
     @property
@@ -252,7 +265,7 @@ class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState,
             socket_yaw = torch.as_tensor(rng.uniform(-yaw_range, yaw_range), dtype=torch.float32)
             socket_pose = self._socket_pose_at(socket_xy + torch.tensor(self.socket_center), socket_yaw, torch.zeros(b))
             self.socket.set_pose(socket_pose)
-            top = socket_pose * Pose.create_from_pq(torch.tensor([[0, 0, self.socket_height]]).repeat(b, 1))
+            top = socket_pose * self._opening_in_socket_actor(b)
 
             # Part tip in the start region: above the opening with an xy offset and a yaw error.
             off = torch.zeros(b, 3)
@@ -261,6 +274,9 @@ class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState,
             off[:, 2] = torch.as_tensor(rng.uniform(*self.start_height_range), dtype=torch.float32)
             part_yaw = torch.as_tensor(rng.uniform(-self.start_yaw_range, self.start_yaw_range), dtype=torch.float32)
             part_pose = Pose.create_from_pq(top.p + off, yaw_quat(socket_yaw + part_yaw))
+            if self.socket_tilt:  # the offset and the part lean with the opening's axis
+                lean = top * Pose.create_from_pq(q=yaw_quat(-socket_yaw)) * Pose.create_from_pq(-top.p)
+                part_pose = lean * part_pose
             tcp_target = part_pose * Pose.create(sapien.Pose(p=[0, 0, self.part_length_below_tcp], q=_FLIP_X))
             qpos = self._solve_ik(tcp_target, env_idx)
             self.agent.robot.set_qpos(qpos)
@@ -305,12 +321,33 @@ class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState,
         return q
 
     # ------------------------------------------------------------------ task
+    def _block_in_socket_actor(self) -> sapien.Pose:
+        """Where the block's own frame (base at z = 0, opening up) sits in the socket actor's (on the floor)."""
+        return sapien.Pose([0, 0, self.socket_lift], y_rotation(-self.socket_tilt))
+
+    def _opening_in_socket_actor(self, count: int) -> Pose:
+        """The socket frame (centre of the opening on its top face, axis z) in the socket actor's, ``count`` times."""
+        opening = self._block_in_socket_actor() * sapien.Pose([0, 0, self.socket_height])
+        p = torch.tensor([list(opening.p)], dtype=torch.float32, device=self.device).repeat(count, 1)
+        q = torch.tensor([list(opening.q)], dtype=torch.float32, device=self.device).repeat(count, 1)
+        return Pose.create_from_pq(p, q)
+
+    def opening_pose(self) -> Pose:
+        """World pose ``[num_envs]`` of the socket frame: the centre of the opening on its top face, the axis z."""
+        return self.socket.pose * self._opening_in_socket_actor(self.num_envs)
+
+    def axis_lean(self) -> torch.Tensor:
+        """Rotation ``[num_envs, 3, 3]`` leaning the world's axes as the opening's axis leans (identity if upright)."""
+        eye = torch.eye(3, device=self.device).expand(self.num_envs, 3, 3)
+        if not self.socket_tilt:
+            return eye
+        socket = self.socket.pose.q
+        lean = quaternion_multiply(self.opening_pose().q, quaternion_invert(socket))
+        return quaternion_to_matrix(lean)
+
     def tip_pose_in_socket(self) -> Pose:
         """Pose of the part frame (tip) in the socket frame (top of the opening)."""
-        top = self.socket.pose * Pose.create_from_pq(
-            torch.tensor([[0, 0, self.socket_height]], device=self.device).repeat(self.num_envs, 1)
-        )
-        return top.inv() * self.part.pose
+        return self.opening_pose().inv() * self.part.pose
 
     def in_start_region(self) -> torch.Tensor:
         """Bool ``[num_envs]``: the part tip is more than ``start_region_height`` above the socket."""

@@ -137,7 +137,20 @@ def hold_vias(env) -> dict:
 
 def hold_turns(env) -> dict:
     """The orientations of the probes not held upright (rotation vectors, socket frame; ``HoldPolicy(turn=)``)."""
-    return {p.name: p.turn for p in PROBES if p.turn is not None}
+    return {p.name: symmetric_turn(env, p.turn) for p in PROBES if p.turn is not None}
+
+
+def symmetric_turn(env, turn: tuple) -> tuple:
+    """``turn`` with its turn about the part's axis held to 3/4 of the way to the part's next fit.
+
+    A part that fits every ``2 pi / k`` (``yaw_symmetry`` k >= 2) turned further would be turned towards, or past,
+    its next fit: a hexagonal part turned 55 deg is 5 deg from fitting.
+    """
+    k = env.unwrapped.yaw_symmetry
+    if k < 2:
+        return turn
+    limit = 0.75 * np.pi / k
+    return (turn[0], turn[1], float(np.clip(turn[2], -limit, limit)))
 
 
 def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS,

@@ -57,14 +57,13 @@ def _rotation_error(env, turn: Optional[torch.Tensor] = None) -> torch.Tensor:
     err[:, 2] = _yaw_error(env)
     if turn is not None:
         err = err - turn
-    rot = quaternion_to_matrix(env.socket.pose.q)
-    return torch.einsum("bij,bj->bi", rot, err)
+    return _socket_to_world(env, err)
 
 
-def _socket_to_world(env, vec_xy: torch.Tensor) -> torch.Tensor:
-    """Rotate ``[B, 2]`` vectors from the socket frame to the world frame."""
-    rot = quaternion_to_matrix(env.socket.pose.q)
-    return torch.einsum("bij,bj->bi", rot[:, :2, :2], vec_xy)
+def _socket_to_world(env, vec: torch.Tensor) -> torch.Tensor:
+    """Rotate ``[B, 3]`` vectors from the socket frame to the world frame."""
+    rot = quaternion_to_matrix(env.opening_pose().q)
+    return torch.einsum("bij,bj->bi", rot, vec)
 
 
 class ScriptedPolicy:
@@ -100,20 +99,24 @@ class ScriptedPolicy:
         # Approach-axis force in the hand frame (z points down the gripper).
         return rel.p, _yaw_error(self.env), ft[:, 2].abs()
 
-    def move(self, target_in_socket: torch.Tensor, speed: float = 1.0,
-             turn: Optional[torch.Tensor] = None) -> torch.Tensor:
+    def move(self, target_in_socket: torch.Tensor, speed=1.0, turn: Optional[torch.Tensor] = None) -> torch.Tensor:
         """Action moving the tip towards ``target_in_socket`` ``[B, 3]`` (socket frame), upright, or turned by ``turn``.
 
         The default controller moves relative to the *current* pose, so contact torques would
         tilt the part a little more at every step; the rotation part undoes any tilt and yaw.
         ``turn`` ``[B, 3]`` (rotation vector, socket frame, as ``_rotation_error`` measures it) is the orientation
-        error to hold instead of none.
+        error to hold instead of none. ``speed`` (a fraction of the action range, a float or ``[B]``) caps each
+        component of the move along the world's axes leaned with the opening's (``axis_lean``), so a move along a
+        tilted socket's axis stays on it.
         """
         tip = self.env.tip_pose_in_socket().p
         delta = target_in_socket - tip
-        delta_world = torch.cat([_socket_to_world(self.env, delta[:, :2]), delta[:, 2:]], dim=1)
+        lean = self.env.axis_lean()
+        delta_lean = torch.einsum("bji,bj->bi", lean, _socket_to_world(self.env, delta))
+        speed = torch.as_tensor(speed, dtype=delta.dtype, device=self.device).expand(self.n)[:, None]
+        step = torch.minimum(torch.maximum(delta_lean / EE_POS_LIMIT, -speed), speed)
         action = torch.zeros(self.n, 6, device=self.device)
-        action[:, :3] = (delta_world / EE_POS_LIMIT).clamp(-speed, speed)
+        action[:, :3] = torch.einsum("bij,bj->bi", lean, step)
         # pd_ee_delta_pose rotates about root-aligned axes at the TCP, by the action times
         # ``rot_lower`` (= -EE_ROT_LIMIT in ManiSkill 3.0): +error undoes the error.
         action[:, 3:] = (_rotation_error(self.env, turn) / EE_ROT_LIMIT).clamp(-1, 1)
@@ -174,12 +177,9 @@ class ExpertPolicy(ScriptedPolicy):
         # A descend_from below the pre-insertion point is approached instead, or the expert would stop short of it.
         approach = self.pre_height if self.descend_from is None else min(self.pre_height, self.descend_from)
         target[:, 2] = torch.where(self.phase == 1, tip[:, 2] - step, torch.full_like(tip[:, 2], approach))
-        action = self.move(target, speed=0.5)
-        # The last centimetre of the approach at fine_speed (per env: move() takes one speed).
+        # The last centimetre of the approach at fine_speed.
         slow = (self.phase == 0) & ((tip - target).norm(dim=1) < self.fine_radius)
-        action[:, :3] = torch.where(slow[:, None], action[:, :3].clamp(-self.fine_speed, self.fine_speed),
-                                    action[:, :3])
-        return action
+        return self.move(target, speed=torch.where(slow, self.fine_speed, 0.5))
 
 
 class AlignSuccessPolicy(ScriptedPolicy):

@@ -15,7 +15,7 @@ from drem_maniskill.drem.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drem_maniskill.envs import TASKS
+from tests.conftest import SHIPPED_TASKS
 
 
 def test_checkpoint_round_trip_and_errors(tmp_path):
@@ -60,7 +60,7 @@ def test_compatibility_check_names_every_difference():
         check_compatible(header, "PegInHole-v1", {"fixed_camera": (1, 1), "wrist_camera": (1, 1)}, None)
 
 
-@pytest.mark.parametrize("task", TASKS)
+@pytest.mark.parametrize("task", SHIPPED_TASKS)
 def test_shipped_checkpoints_load_by_default(task):
     env = gym.make(task, obs_mode="state", reward_mode="drem")
     try:

@@ -8,7 +8,7 @@ import torch.nn.functional as F
 
 from drem_maniskill.drem.model import DREMModel, ModelConfig
 from drem_maniskill.drem.reward import DREMReward, default_checkpoint
-from drem_maniskill.envs import TASKS
+from tests.conftest import SHIPPED_TASKS
 
 ATOL = 1e-4
 
@@ -28,7 +28,7 @@ def _random_reward(seed: int = 0, **config) -> DREMReward:
     return DREMReward({"model": model.config.to_dict()}, weights)
 
 
-@pytest.fixture(scope="module", params=TASKS)
+@pytest.fixture(scope="module", params=SHIPPED_TASKS)
 def shipped(request):
     return DREMReward.from_checkpoint(str(default_checkpoint(request.param)))
 

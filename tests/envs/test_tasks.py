@@ -276,9 +276,10 @@ def test_fingers_rest_on_the_part_from_the_first_observation(task):
     assert torch.allclose(fingers(u.agent.robot.get_qpos()), torch.full((2,), width), atol=5e-4)
 
 
-def test_usb_enters_only_one_way_up():
-    """The expert, told the plug is symmetric under a half turn, aligns it flipped: blocked."""
-    env = make_env("USBInsertion-v1", obs_mode="state_dict")
+@pytest.mark.parametrize("task", ["USBInsertion-v1", "DPegInHole-v1"])
+def test_a_keyed_part_enters_only_one_way_round(task):
+    """The expert, told the part is symmetric under a half turn, aligns it flipped: blocked."""
+    env = make_env(task, obs_mode="state_dict")
     u = env.unwrapped
     results = {}
     for flipped in (False, True):
@@ -306,6 +307,30 @@ def test_usb_enters_only_one_way_up():
         results[flipped] = info["insertion_depth"].item()
     assert results[False] >= 0.8 * u.hole_depth
     assert results[True] < 0.3 * u.hole_depth, results
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_the_opening_admits_the_part_within_its_gap_and_not_half_a_millimetre_past_it(task):
+    """Held upright above the opening at an offset across the axis (socket frame x, then y), then lowered 2 mm a step,
+    the part enters at half its radial gap (``clearance`` / 2) and rests on the face half a millimetre past it."""
+    from drem_maniskill.experts.scripted import HoldPolicy
+
+    env = make_env(task, obs_mode="state_dict")
+    u = env.unwrapped
+    gap = u.clearance / 2
+    for axis in (0, 1):
+        depths = {}
+        for offset in (gap / 2, gap + 0.0005):
+            above = [0.0, 0.0, 0.003]
+            above[axis] = offset
+            obs, _ = env.reset(seed=2)
+            for target, speed in ((above, 0.5), ([*above[:2], -0.012], 0.1)):
+                policy = HoldPolicy(env, target, speed=speed)
+                for _ in range(10):
+                    obs, *_ = env.step(policy(obs))
+            depths[offset] = -u.tip_pose_in_socket().p[0, 2].item()
+        inside, outside = depths.values()
+        assert inside > 0.011 and outside < 0.001, (axis, depths)
 
 
 def test_action_scale_is_fine_enough():

@@ -57,8 +57,12 @@ def test_a_hold_pushed_against_the_blocks_side_presses_it_sideways_and_down_wher
 @pytest.mark.parametrize("task", TASKS)
 def test_a_turned_hold_holds_the_part_turned_and_tilted_where_an_upright_one_holds_it_upright(task):
     """``HoldPolicy(turn=)``: the tip where asked, turned about its axis and tilted as asked (as the success test
-    measures them); a round part is only tilted, since it has no turn about its axis to hold."""
+    measures them); a round part is only tilted, since it has no turn about its axis to hold, and a part that fits
+    every quarter or sixth of a turn is turned 3/4 of the way to its next fit."""
     import numpy as np
+    import torch
+    from mani_skill.utils.geometry.rotation_conversions import axis_angle_to_quaternion
+    from mani_skill.utils.structs import Pose
 
     from drem_maniskill.experts.scripted import HoldPolicy
     from drem_maniskill.evaluate.probes import TURN, TURN_STEPS, TURNED_HOVER, hold_targets, hold_turns
@@ -66,8 +70,13 @@ def test_a_turned_hold_holds_the_part_turned_and_tilted_where_an_upright_one_hol
     env = make_env(task, obs_mode="state_dict")
     u = env.unwrapped
     target, turn = hold_targets(env)[TURNED_HOVER], hold_turns(env)[TURNED_HOVER]
-    assert turn == TURN
-    for held, tilt_deg, yaw_deg in ((None, 0.0, 0.0), (turn, 11.1, 55.2 if u.yaw_symmetry else 0.0)):
+    assert (turn == TURN) == (u.yaw_symmetry < 2) and abs(turn[2]) <= abs(TURN[2])
+    vec = torch.tensor([[turn[0], turn[1], turn[2] if u.yaw_symmetry else 0.0]])
+    asked = u.orientation_errors(Pose.create_from_pq(torch.zeros(1, 3), axis_angle_to_quaternion(vec)))
+    tilt_asked, yaw_asked = (float(np.degrees(a[0])) for a in asked)
+    if u.yaw_symmetry == 1:
+        assert abs(tilt_asked - 10.7) < 0.1 and abs(yaw_asked - 55.2) < 0.1  # TURN itself
+    for held, tilt_deg, yaw_deg in ((None, 0.0, 0.0), (turn, tilt_asked, yaw_asked)):
         obs, _ = env.reset(seed=3)
         pi = HoldPolicy(env, target, turn=held)
         for _ in range(TURN_STEPS):  # as the examination holds it

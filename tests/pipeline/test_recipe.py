@@ -151,14 +151,15 @@ def test_an_unknown_scale_lists_the_scales(tmp_path):
         load_recipe("PegInHole-v1", "huge", recipe=path)
 
 
-def test_a_task_without_a_recipe_says_how_to_write_one_or_use_the_defaults():
-    with pytest.raises(RecipeError) as err:
-        load_recipe("NoRecipe-v1")
-    message = str(err.value)
-    assert "tasks/NoRecipe-v1/recipe.toml" in message and f"--recipe {GENERAL}" in message
-    general = load_recipe("NoRecipe-v1", "tiny", recipe=GENERAL)
+def test_a_task_without_a_recipe_file_gets_the_general_recipe_and_a_missing_file_is_named(tmp_path):
+    general = load_recipe("NoRecipe-v1", "tiny")
+    assert general.source == GENERAL and general.to_dict() == load_recipe("NoRecipe-v1", "tiny", GENERAL).to_dict()
     assert general.sampler_config().phases_on() == {} and general.expert_file() is None
-    assert load_recipe("NoRecipe-v1", recipe=GENERAL).train_config().iterations == 20_000
+    assert load_recipe("NoRecipe-v1").train_config().iterations == 20_000
+    assert load_recipe("PegInHole-v1").source.endswith("tasks/PegInHole-v1/recipe.toml")  # a recipe file comes first
+    with pytest.raises(RecipeError) as err:
+        load_recipe("PegInHole-v1", recipe=tmp_path / "nothere.toml")
+    assert "nothere.toml" in str(err.value) and "does not exist" in str(err.value)
 
 
 def test_invalid_toml_names_the_file(tmp_path):
