@@ -43,6 +43,47 @@ def test_tiny_build_runs_end_to_end_and_a_second_call_skips_every_stage(tmp_path
     print(f"tiny build: {took:.0f} s")
 
 
+@pytest.mark.slow
+def test_a_task_without_a_recipe_builds_a_tiny_general_reward_without_reading_its_geometry(tmp_path, capsys,
+                                                                                         monkeypatch):
+    """The general recipe on a task with no recipe file, end to end, its sampler unable to read the socket's geometry."""
+    from drem_maniskill.envs.adapter import EnvAdapter
+
+    def no_geometry(self):
+        raise AssertionError("the general recipe asked the task for its socket geometry")
+
+    monkeypatch.setattr(EnvAdapter, "socket_geometry", no_geometry)
+    task = "DPegInHole-v1"
+    recipe = load_recipe(task, "tiny")
+    # In this process (one worker), so the sampler's env is the patched one.
+    assert not recipe_path(task).is_file() and recipe.source == "default" and recipe.sampler_config().workers == 1
+    path = build_reward(task, scale="tiny", out=tmp_path / "general")
+    header, _ = load_checkpoint(str(path))
+    assert header["env_id"] == task and header["modalities"] == ["fixed", "wrist", "ft"]
+    quality = json.loads((tmp_path / "general" / "quality.json").read_text())
+    assert quality["env_id"] == task and -1 <= quality["value_order_spearman"] <= 1
+    assert "recipe default" in capsys.readouterr().err
+
+
+def test_the_sampler_reads_the_socket_geometry_only_for_a_phase_that_needs_it():
+    from drem_maniskill.pipeline.tree.backward import socket_geometry
+    from drem_maniskill.pipeline.tree.config import SamplerConfig
+
+    class Adapter:
+        calls = 0
+
+        def socket_geometry(self):
+            Adapter.calls += 1
+            return "geometry"
+
+    class Sampler:
+        adapter = Adapter()
+
+    assert socket_geometry(Sampler(), SamplerConfig()) is None and Adapter.calls == 0
+    face = SamplerConfig.from_dict({"phases": {"face": {"depth": 2}}})
+    assert socket_geometry(Sampler(), face) == "geometry" and Adapter.calls == 1
+
+
 def test_outputs_of_another_recipe_are_refused(tmp_path):
     tiny = load_recipe("PegInHole-v1", "tiny")
     check_same_recipe(tmp_path / "recipe.json", tiny)

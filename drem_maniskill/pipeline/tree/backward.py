@@ -124,12 +124,19 @@ def backward_sample(expert_path: str, out_path: str, config: Optional[SamplerCon
         context = PhaseContext(
             partial, pool, config, tree_file.mark_start_depth(partial, depth),
             bind(action_scale_at, expert_ee=expert_ee, config=config, translation_limit=sampler.translation_limit),
-            sampler.adapter.socket_geometry(), progress)
+            socket_geometry(sampler, config), progress)
         for name, settings in config.phases_on().items():
             PHASES[name].sample(context.for_phase(name, stream_of(name)), settings)
         return tree_file.finish(partial, out_path)
     finally:
         pool.close()
+
+
+def socket_geometry(sampler: ChildSampler, config: SamplerConfig):
+    """The task's socket geometry where a phase that is on needs it, else None: the paper's loop never reads it."""
+    if not any(PHASES[name].needs_geometry for name in config.phases_on()):
+        return None
+    return sampler.adapter.socket_geometry()
 
 
 def _check(expert_path: str, expert: ExpertTrajectory, sampler: ChildSampler, config: SamplerConfig) -> None:
@@ -165,7 +172,7 @@ def _open_or_resume(partial: Path, expert: ExpertTrajectory, expert_ee: np.ndarr
                     sampler: ChildSampler) -> tuple:
     """The depth, seeds and seed nodes to go on from: a resumable partial file's last complete depth, else a new file
     holding the goal state (depth 0)."""
-    geometry = sampler.adapter.socket_geometry()
+    geometry = socket_geometry(sampler, config)
     header = dict(config=config.to_dict(), env_id=expert.env_id, env_kwargs=expert.env_kwargs,
                   episode_seed=expert.episode_seed, expert_length=expert.length - 1,
                   camera_map=sampler.adapter.camera_map, has_ft=sampler.adapter.has_ft, action_dim=sampler.action_dim,
