@@ -11,7 +11,8 @@ Variants, each the one before plus one thing (all built from the task's own ``ta
     shipped       the recipe as written, without rounds (the shipped checkpoints' recipe)
 
 At ``--scale full`` every variant samples M = 500 children and trains 20,000 iterations (the paper's); at
-``pilot`` M = 100 and 2,000 iterations. Each (task, variant) builds with ``build_reward`` into
+``pilot`` M = 100 and 2,000 iterations; at ``pilot_long`` M = 100 and 20,000 iterations (which of the two the
+full scale needs). Each (task, variant) builds with ``build_reward`` into
 ``<out>/<scale>/<task>/<variant>/`` and is then trained on with state-preset SAC through the sweep
 (``rl.sweep.run_sweep``), two trials at a time, into ``<out>/<scale>/sac/<task>/<variant>/seed<S>``. Rerunning
 the same command resumes every build and run. The examination's measures go to
@@ -35,7 +36,8 @@ from pathlib import Path
 from general_recipe import add_build_time  # experiments/ is the script's folder
 
 ORDER = ("paper", "expert_step", "slowed_demo", "outward", "rounds", "phases", "shipped")
-SCALES = {"pilot": dict(num_children=100, iterations=2000), "full": dict(num_children=500, iterations=20000)}
+SCALES = {"pilot": dict(num_children=100, iterations=2000), "pilot_long": dict(num_children=100, iterations=20000),
+          "full": dict(num_children=500, iterations=20000)}
 THREE_ROUNDS = {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}
 RESULTS = Path("docs/results/ablation")
 RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
