@@ -21,6 +21,7 @@ the same command resumes every build and run. The examination's measures go to
 
     .venv/bin/python experiments/ablation.py --tasks PegInHole-v1 USBInsertion-v1 --variants shipped paper \
         --scale pilot --seeds 0
+    .venv/bin/python experiments/ablation.py --table    # the table of docs/results/ablation, for docs/results.md
 """
 
 from __future__ import annotations
@@ -91,8 +92,10 @@ def build(task: str, variant: str, scale: str, out: str) -> dict:
 
     work = Path(out) / scale / task / variant
     start = time.time()
-    checkpoint = build_reward(task, scale="full", out=work, recipe=variant_recipe(task, variant, scale))
-    seconds = add_build_time(work, time.time() - start)
+    try:
+        checkpoint = build_reward(task, scale="full", out=work, recipe=variant_recipe(task, variant, scale))
+    finally:  # an interrupted build's time counts too: its rerun resumes it
+        seconds = add_build_time(work, time.time() - start)
     quality = json.loads((work / "examination" / "quality.json").read_text())
     result = dict(task=task, variant=variant, scale=scale, recipe=variant_recipe(task, variant, scale),
                   build_seconds=round(seconds), checkpoint=str(checkpoint),
@@ -135,16 +138,55 @@ def copy_runs(configs) -> None:
                 shutil.copyfile(run / name, dest / name)
 
 
+def sac_cell(folder: Path, steps: int) -> str:
+    """A variant's SAC success at ``steps``, per seed, from its committed ``seed<S>/eval.csv`` files (where a run
+    stopped short of ``steps``: its success at its last evaluation and that step)."""
+    cells = []
+    for run in sorted(folder.glob("seed*/eval.csv")):
+        rows = [line.split(",") for line in run.read_text().splitlines()[1:] if line]
+        if not rows:
+            continue
+        step, success = int(rows[-1][0]), float(rows[-1][1])
+        best = max(float(r[1]) for r in rows)
+        cell = f"{success:.0%}" if step >= steps else f"{success:.0%} at {step:,}"
+        cells.append(cell + (f" (best {best:.0%})" if best > success else ""))
+    return " / ".join(cells) or "not run"
+
+
+def table(scales, steps: int) -> str:
+    """The ablation's table (markdown) from ``docs/results/ablation``: each variant's examination and its SAC."""
+    lines = ["| task | scale | variant | value order | AUROC | Direct Success end | Random end | build | "
+             f"state SAC at {steps:,} steps, per seed |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for scale in scales:
+        for task_dir in sorted((RESULTS / scale).glob("*")):
+            done = {p.stem: json.loads(p.read_text()) for p in task_dir.glob("*.json")}
+            for variant in (v for v in ORDER if v in done):
+                r = done[variant]
+                final = r.get("policy_final_mean") or {}
+                lines.append(
+                    f"| {task_dir.name} | {scale} | `{variant}` | {r['value_order_spearman']:.3f} | "
+                    f"{r['final_reward_auroc']:.3f} | {final.get('direct_success', float('nan')):.2f} | "
+                    f"{final.get('random', float('nan')):.2f} | {r['build_seconds'] / 60:.0f} min | "
+                    f"{sac_cell(task_dir / variant, steps)} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     """Build every task x variant, two at a time, then train SAC on each through the sweep."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tasks", nargs="+", required=True)
+    p.add_argument("--tasks", nargs="+", default=[])
     p.add_argument("--variants", nargs="+", default=list(ORDER), choices=ORDER)
     p.add_argument("--scale", default="pilot", choices=list(SCALES))
     p.add_argument("--seeds", nargs="*", type=int, default=[0])
     p.add_argument("--steps", type=int, default=50_000)
     p.add_argument("--out", default="outputs/ablation")
+    p.add_argument("--table", action="store_true", help="print the table of the committed results and stop")
     args = p.parse_args()
+    if args.table:
+        print(table([s for s in SCALES if (RESULTS / s).is_dir()], args.steps))
+        return
+    if not args.tasks:
+        p.error("--tasks is required to build and train")
     # In the order given: the runs of the first variants named start first.
     jobs = [(t, v) for v in dict.fromkeys(args.variants) for t in args.tasks if v in variants_of(t, [v])]
     # spawn: the parent has SAPIEN and torch loaded, which a forked child must not share.
