@@ -7,12 +7,12 @@ import sapien
 
 from mani_skill.utils.registration import register_env
 
-from drem_maniskill.envs.geometry import add_round_bore, d_prism_obj
-from drem_maniskill.envs.insertion_base import InsertionEnv
+from drem_maniskill.envs.geometry import d_prism_obj
+from drem_maniskill.envs.peg_in_hole import PegInHoleEnv
 
 
 @register_env("DPegInHole-v1", max_episode_steps=50)
-class DPegInHoleEnv(InsertionEnv):
+class DPegInHoleEnv(PegInHoleEnv):
     """
     **Task Description:**
     A Panda holds a D-shaped peg (a round peg 20 mm across with one flat 6 mm from its axis,
@@ -24,8 +24,8 @@ class DPegInHoleEnv(InsertionEnv):
     100 Hz physics.
 
     **Geometry as built:** the peg is a convex prism, a 32-gon arc closed by the flat. The hole
-    is a 32-sided ring of boxes tangent to the round (as in PegInHole-v1) and one box whose face
-    is the hole's flat.
+    is PegInHole-v1's (a 32-sided ring of boxes tangent to the round) and one box whose face is
+    the hole's flat.
 
     **Randomizations (per episode, reproducible from the seed):**
     - the block's xy position (+-2 cm) and yaw (+-15 deg) on the floor;
@@ -65,18 +65,9 @@ class DPegInHoleEnv(InsertionEnv):
         builder.add_convex_collision_from_file(shape)
         builder.add_visual_from_file(shape, material=material)
 
-    @property
-    def side_contact(self) -> float:
-        """Tip-to-axis distance along the socket's x where the peg touches the block's side."""
-        return self.peg_radius + self.clearance / 2 + self.wall + self.peg_radius
-
     def _add_socket_shapes(self, builder, material):
+        super()._add_socket_shapes(builder, material)  # the round hole
         hole_radius = self.peg_radius + self.clearance / 2
-        outer = hole_radius + self.wall
-        base = [outer, outer, self.base_thickness / 2]
-        builder.add_box_collision(sapien.Pose([0, 0, self.base_thickness / 2]), base)
-        builder.add_box_visual(sapien.Pose([0, 0, self.base_thickness / 2]), base, material=material)
-        add_round_bore(builder, hole_radius, self.hole_depth, self.wall, self.segments, self.base_thickness, material)
         # The key: fills the round beyond the hole's flat (inside the ring's walls wherever it reaches past the round).
         face = self.flat + self.clearance / 2
         key_half = [(hole_radius + self.wall / 2 - face) / 2, hole_radius, self.hole_depth / 2]

@@ -7,7 +7,7 @@ import sapien
 
 from mani_skill.utils.registration import register_env
 
-from drem_maniskill.envs.geometry import add_round_bore, prism_obj
+from drem_maniskill.envs.geometry import add_block_with_bore, prism_obj
 from drem_maniskill.envs.insertion_base import InsertionEnv
 
 
@@ -72,8 +72,5 @@ class PegInHoleEnv(InsertionEnv):
 
     def _add_socket_shapes(self, builder, material):
         hole_radius = self.peg_radius + self.clearance / 2
-        outer = hole_radius + self.wall
-        base = [outer, outer, self.base_thickness / 2]
-        builder.add_box_collision(sapien.Pose([0, 0, self.base_thickness / 2]), base)
-        builder.add_box_visual(sapien.Pose([0, 0, self.base_thickness / 2]), base, material=material)
-        add_round_bore(builder, hole_radius, self.hole_depth, self.wall, self.segments, self.base_thickness, material)
+        add_block_with_bore(builder, hole_radius, self.segments, self.hole_depth, self.wall, self.base_thickness,
+                            material)
