@@ -155,7 +155,7 @@ def sac_cell(folder: Path, steps: int) -> str:
 
 def table(scales, steps: int) -> str:
     """The ablation's table (markdown) from ``docs/results/ablation``: each variant's examination and its SAC."""
-    lines = ["| task | scale | variant | value order | AUROC | Direct Success end | Random end | build | "
+    lines = ["| task | scale | variant | value order | AUROC | expert end, held-out | Direct Success end | build | "
              f"state SAC at {steps:,} steps, per seed |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for scale in scales:
         for task_dir in sorted((RESULTS / scale).glob("*")):
@@ -163,10 +163,12 @@ def table(scales, steps: int) -> str:
             for variant in (v for v in ORDER if v in done):
                 r = done[variant]
                 final = r.get("policy_final_mean") or {}
+                # A build that ran across interrupted invocations before their time was kept has none.
+                build = "not measured" if r["build_seconds"] is None else f"{r['build_seconds'] / 60:.0f} min"
                 lines.append(
                     f"| {task_dir.name} | {scale} | `{variant}` | {r['value_order_spearman']:.3f} | "
-                    f"{r['final_reward_auroc']:.3f} | {final.get('direct_success', float('nan')):.2f} | "
-                    f"{final.get('random', float('nan')):.2f} | {r['build_seconds'] / 60:.0f} min | "
+                    f"{r['final_reward_auroc']:.3f} | {r['expert_end_heldout']:.2f} | "
+                    f"{final.get('direct_success', float('nan')):.2f} | {build} | "
                     f"{sac_cell(task_dir / variant, steps)} |")
     return "\n".join(lines)
 
