@@ -46,7 +46,7 @@ def test_tiny_build_runs_end_to_end_and_a_second_call_skips_every_stage(tmp_path
 @pytest.mark.slow
 def test_a_task_without_a_recipe_builds_a_tiny_general_reward_without_reading_its_geometry(tmp_path, capsys,
                                                                                          monkeypatch):
-    """The general recipe on a task with no recipe file, end to end, its sampler unable to read the socket's geometry."""
+    """The general recipe on a task with no recipe file, end to end, its sampler unable to read the geometry."""
     from drem_maniskill.envs.adapter import EnvAdapter
 
     def no_geometry(self):
