@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from drem_maniskill.drem.checkpoint import load_checkpoint
 from drem_maniskill.pipeline import recipe as recipe_module
 from drem_maniskill.pipeline.build_reward import PUBLISHED
 from drem_maniskill.pipeline.recipe import load_recipe, recipe_path, task_folder
@@ -123,5 +124,9 @@ def test_an_installed_wheel_builds_a_tiny_reward_from_its_own_recipe_and_demo(tm
     assert f"recipe {installed / 'recipe.toml'}, scale tiny" in build.stderr, build.stderr[-3000:]
     assert f"demo: the committed {installed / 'expert.h5'}" in build.stderr, build.stderr[-3000:]
     out = work / "outputs" / "build_reward" / "PegInHole-v1" / "tiny"
-    assert (out / "drem.pt").is_file() and (out / "quality.json").is_file()
+    assert all((out / name).is_file() for name in PUBLISHED.values())
+    header, _ = load_checkpoint(str(out / "drem.pt"))
+    assert header["env_id"] == "PegInHole-v1" and header["train"]["iterations"] == 50
+    assert header["sampler"]["num_children"] == 4 and header["modalities"] == ["fixed", "wrist", "ft"]
+    assert load_checkpoint(str(out / "drem_image.pt"))[0]["modalities"] == ["fixed", "wrist"]  # the recipe's twin
     assert _snapshot(ROOT / "rewards", ROOT / "tasks") == checkout

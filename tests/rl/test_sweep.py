@@ -18,9 +18,7 @@ from drem_maniskill.rl.config import RLConfig
 from drem_maniskill.rl.sweep import plan_trials, run_sweep, split_finished
 from drem_maniskill.rl.train_policy import read_eval_csv
 
-# Local Ray clusters of two xdist workers would compete for the same cores and the CPU-share test measures them.
-pytestmark = pytest.mark.xdist_group("ray")
-
+# `make test` runs a test file on one xdist worker: one local Ray cluster at a time, as the CPU-share test needs.
 # A 200-step light run: one held-out episode at steps 0, 100 and 200, gradient steps only after 150.
 TINY = ["--steps", "200", "--eval-every", "100", "--eval-episodes", "1", "--learning-starts", "150",
         "--batch-size", "16"]
