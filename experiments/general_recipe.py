@@ -48,6 +48,8 @@ RELATIVE = {"train": {"model": {"poses_relative": True}}}
 VARIANTS = {
     "base": (),
     "expert_step_range": ({"sampler": {"expert_step_scale": 4.0}},),
+    # The expert-step range on the demo's path walked in even steps of its median step (no slowed demo).
+    "even_path": ({"sampler": {"expert_step_scale": 4.0, "even_path": True}},),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
     "three_rounds": (THREE_ROUNDS,),

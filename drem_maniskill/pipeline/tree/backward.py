@@ -51,6 +51,29 @@ def ee_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_we
     return dist
 
 
+def even_path(expert_ee: np.ndarray, rotation_weight: float) -> np.ndarray:
+    """The demo's end-effector path with every step split into equal parts of about its median step.
+
+    Poses between two recorded ones are interpolated (position and gripper width linearly, the quaternion
+    normalised-linearly). The recorded poses stay, the goal last; only the demo's own steps set the length.
+    """
+    step = ee_distance(expert_ee[:-1], expert_ee[1:], rotation_weight)
+    moving = step[step > 1e-6]
+    if not len(moving):
+        return expert_ee
+    unit = float(np.median(moving))
+    rows = [expert_ee[:1]]
+    for a, b, length in zip(expert_ee[:-1], expert_ee[1:], step):
+        parts = max(int(np.rint(length / unit)), 1)
+        f = (np.arange(1, parts + 1) / parts)[:, None]
+        qb = b[3:7] * (1.0 if np.dot(a[3:7], b[3:7]) >= 0 else -1.0)  # the short way round
+        q = (1 - f) * a[3:7] + f * qb
+        mid = np.concatenate([(1 - f) * a[:3] + f * b[:3], q / np.linalg.norm(q, axis=1, keepdims=True),
+                              (1 - f) * a[7:] + f * b[7:]], axis=1)
+        rows.append(mid)
+    return np.concatenate(rows).astype(expert_ee.dtype)
+
+
 def action_scale_at(depth: int, expert_ee: np.ndarray, config: SamplerConfig, translation_limit: float) -> float:
     """The arm action range for the children of depth ``depth`` (``SamplerConfig.expert_step_scale``)."""
     if config.expert_step_scale <= 0:
@@ -115,6 +138,8 @@ def backward_sample(expert_path: str, out_path: str, config: Optional[SamplerCon
         # The measure compares with the expert's end-effector states, read from its env states (not its
         # observations), so any demo with env_states works.
         expert_ee = sampler.expert_ee_states(expert.states)
+        if config.even_path:
+            expert_ee = even_path(expert_ee, config.rotation_weight)
         sampler.expert_first_ee = expert_ee[0]
         pool.start_workers(expert.env_id, expert.env_kwargs, expert.episode_seed, expert_ee[0], config.start_radius)
         depth, seeds, nodes = _open_or_resume(partial, expert, expert_ee, config, sampler)

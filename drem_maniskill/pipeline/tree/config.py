@@ -37,6 +37,10 @@ class SamplerConfig:
     expert_step_scale: float = 0.0
     """When > 0, the arm actions at each depth span this many times the expert's own step there, clipped to
     [min_action_scale, action_scale]: fine where the expert moves slowly, the whole range where it moves fast."""
+    even_path: bool = False
+    """The progress measure walks the demo's end-effector path in equal steps of about the demo's median step,
+    not at the demo's own pace (beyond the paper): a stretch the demo crossed in a few long steps (a fast final push)
+    gets as many depths per centimetre as the rest, so the reward keeps rising there."""
     min_action_scale: float = 0.05
     """The smallest arm action range (``expert_step_scale``, and the lineage phases' steps)."""
     rotation_weight: float = 0.05
@@ -74,6 +78,9 @@ class SamplerConfig:
         if self.seeds_from_demo and self.num_seeds != 1:
             raise ValueError(f"seeds_from_demo keeps one seed per depth, the demo's state; got num_seeds="
                              f"{self.num_seeds}: set num_seeds to 1 or turn seeds_from_demo off")
+        if self.seeds_from_demo and self.even_path:
+            raise ValueError("seeds_from_demo starts each depth from the demo's own recorded state, which even_path's "
+                             "interpolated poses do not have: turn one of them off")
         unknown = [name for name in self.phases if name not in PHASES]
         if unknown:
             raise ValueError(f"unknown sampler phase {unknown[0]!r}; valid ones: {list(PHASES)}")
