@@ -244,6 +244,26 @@ def test_actions_follow_the_experts_step_when_asked():
     assert action_scale_at(0, ee, SamplerConfig(action_scale=0.7), 0.02) == 0.7  # off: the fixed range
 
 
+def test_even_path_splits_the_demos_long_steps_into_its_median_step_and_keeps_its_poses():
+    """even_path: a demo of 2 mm steps ending in two 6 mm pushes walks the pushes in 2 mm steps too, through the
+    recorded poses, the goal last; the quaternion takes the short way round and stays a unit one."""
+    from drem_maniskill.pipeline.tree.backward import ee_distance, even_path
+
+    z = np.array([0.0, 0.002, 0.004, 0.006, 0.008, 0.014, 0.020])
+    ee = np.zeros((len(z), 8))
+    ee[:, 2], ee[:, 3], ee[:, 7] = z, 1.0, np.linspace(0.04, 0.0, len(z))
+    ee[-1, 3] = -1.0  # the same orientation, the other sign
+    path = even_path(ee, rotation_weight=0.05)
+    assert len(path) == 4 + 3 + 3 + 1
+    np.testing.assert_allclose(ee_distance(path[:-1], path[1:], 0.05), 0.002, atol=1e-9)
+    np.testing.assert_array_equal(path[[0, 4, 7, 10]], ee[[0, 4, 5, 6]])  # the recorded poses themselves
+    np.testing.assert_allclose(np.linalg.norm(path[:, 3:7], axis=1), 1.0)
+    np.testing.assert_allclose(path[8, 7], (2 * ee[5, 7] + ee[6, 7]) / 3)  # the gripper width in between
+    assert even_path(ee[:5], 0.05).shape == ee[:5].shape  # even already: unchanged
+    with pytest.raises(ValueError, match="seeds_from_demo"):
+        SamplerConfig(even_path=True, seeds_from_demo=True)
+
+
 def test_lineages_never_keep_a_child_caught_in_the_opening_and_do_not_keep_the_children_that_went_in():
     """A face lineage takes a child on the face over a farther one caught in the opening's mouth, or, all caught,
     the least deep; a side lineage takes one beside the block over one in the opening; children in the opening are

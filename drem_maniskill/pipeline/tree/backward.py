@@ -70,6 +70,7 @@ def even_path(expert_ee: np.ndarray, rotation_weight: float) -> np.ndarray:
         q = (1 - f) * a[3:7] + f * qb
         mid = np.concatenate([(1 - f) * a[:3] + f * b[:3], q / np.linalg.norm(q, axis=1, keepdims=True),
                               (1 - f) * a[7:] + f * b[7:]], axis=1)
+        mid[-1] = b  # the recorded pose itself, its quaternion's sign included
         rows.append(mid)
     return np.concatenate(rows).astype(expert_ee.dtype)
 
