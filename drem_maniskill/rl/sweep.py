@@ -192,8 +192,18 @@ def run_trial(config: dict, log: str, cwd: str, queue=None) -> dict:
 
 
 def log_path(out, config: RLConfig) -> Path:
-    """The trial's log file: ``<out>/logs/<preset>-<task>-<reward>-seed<S>.log``."""
-    return Path(out) / "logs" / (label(config).replace(" ", "-") + ".log")
+    """The trial's log file: ``<out>/logs/<preset>-<task>-<reward>-seed<S>.log``, or, for a run folder under ``out``
+    that other trials of the same label share ``out`` with (one per reward checkpoint), the preset and that folder's
+    path, ``<preset>-<task>-<variant>-seed<S>.log``."""
+    try:
+        parts = config.run_dir.resolve().relative_to(Path(out).resolve()).parts
+    except ValueError:
+        parts = ()
+    if parts and parts[-3:] != (config.task, config.reward, f"seed{config.seed}"):
+        name = "-".join((config.preset,) + tuple(p for p in parts if p != config.preset))
+    else:
+        name = label(config).replace(" ", "-")
+    return Path(out) / "logs" / (name + ".log")
 
 
 def _start_ray(ray, address: Optional[str]) -> None:

@@ -15,7 +15,7 @@ import pytest
 
 from drem_maniskill.cli import main
 from drem_maniskill.rl.config import RLConfig
-from drem_maniskill.rl.sweep import plan_trials, run_sweep, split_finished
+from drem_maniskill.rl.sweep import log_path, plan_trials, run_sweep, split_finished
 from drem_maniskill.rl.train_policy import read_eval_csv
 
 # `make test` runs a test file on one xdist worker: one local Ray cluster at a time, as the CPU-share test needs.
@@ -72,6 +72,18 @@ def _finished_run(config: RLConfig, steps: int) -> None:
     (run / "checkpoints" / "latest.json").write_text(json.dumps({"step": steps, "dir": f"step_{steps}"}))
     config.save(run / "config.json")
     (run / "eval.csv").write_text(f"steps,success_rate,mean_return,wall_time\n0,0.0,0.0,1.0\n{steps},0.5,1.0,9.0\n")
+
+
+def test_trials_of_one_label_in_their_own_folders_get_their_own_logs(tmp_path):
+    """Two drem trials of one task and seed, each paid by another checkpoint in its own folder, log apart; a grid
+    trial keeps the ``<preset>-<task>-<reward>-seed<S>`` name."""
+    runs = [RLConfig.from_preset("state", task="PegInHole-v1", reward="drem", seed=0,
+                                 out=str(tmp_path / "PegInHole-v1" / variant / "seed0")) for variant in ("a", "b")]
+    assert [log_path(tmp_path, c).name for c in runs] == ["state-PegInHole-v1-a-seed0.log",
+                                                           "state-PegInHole-v1-b-seed0.log"]
+    grid = RLConfig.from_preset("state", task="PegInHole-v1", reward="drem", seed=0,
+                                out=str(tmp_path / "state" / "PegInHole-v1" / "drem" / "seed0"))
+    assert log_path(tmp_path, grid).name == "state-PegInHole-v1-drem-seed0.log"
 
 
 def test_a_finished_grid_is_skipped_without_ray(tmp_path, monkeypatch, capsys):
