@@ -50,6 +50,9 @@ VARIANTS = {
     "expert_step_range": ({"sampler": {"expert_step_scale": 4.0}},),
     # The expert-step range on the demo's path walked in even steps of its median step (no slowed demo).
     "even_path": ({"sampler": {"expert_step_scale": 4.0, "even_path": True}},),
+    # Beside it, lineages leaving the start region in twelve directions (the outward phase reads no geometry).
+    "even_path_outward": ({"sampler": {"expert_step_scale": 4.0, "even_path": True,
+                                       "phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}},),
     "even_path_long": ({"sampler": {"expert_step_scale": 4.0, "even_path": True}}, {"train": {"iterations": 20000}}),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -77,7 +80,10 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "five_trees_three_rounds": ("five_trees", True),
              "five_trees_demo_seeds_three_rounds": ("five_trees_demo_seeds", True),
              "five_trees_128px": ("five_trees", False),
-             "even_path_long": ("even_path", False),
+             # Beside it, lineages leaving the start region in twelve directions (the outward phase reads no geometry).
+    "even_path_outward": ({"sampler": {"expert_step_scale": 4.0, "even_path": True,
+                                       "phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}},),
+    "even_path_long": ("even_path", False),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
              "five_trees_poses_swap": ("five_trees_poses", False),
