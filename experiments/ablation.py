@@ -29,19 +29,17 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
-import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from general_recipe import add_build_time  # experiments/ is the script's folder
+from general_recipe import add_build_time, copy_run_files, drem_sac_configs  # experiments/ is the script's folder
 
 ORDER = ("paper", "expert_step", "slowed_demo", "outward", "rounds", "phases", "shipped")
 SCALES = {"pilot": dict(num_children=100, iterations=2000), "pilot_long": dict(num_children=100, iterations=20000),
           "full": dict(num_children=500, iterations=20000)}
 THREE_ROUNDS = {"rounds": 3, "sac_steps": 10000, "episodes": 20, "iterations": 1000}
 RESULTS = Path("docs/results/ablation")
-RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
 
 
 def shipped(task: str) -> dict:
@@ -112,30 +110,15 @@ def build(task: str, variant: str, scale: str, out: str) -> dict:
 
 def sac_configs(jobs, scale: str, out: str, seeds, steps: int) -> list:
     """One state-preset RLConfig per built (task, variant) and seed, paid by that variant's reward."""
-    from drem_maniskill.rl.config import RLConfig
-    from drem_maniskill.utils.config_cli import apply_overrides
-
-    configs = []
-    for task, variant in jobs:
-        checkpoint = Path(out) / scale / task / variant / "drem.pt"
-        for seed in seeds:
-            run = Path(out) / scale / "sac" / task / variant / f"seed{seed}"
-            configs.append(apply_overrides(RLConfig.from_preset("state"), dict(
-                task=task, reward="drem", seed=int(seed), steps=int(steps), out=str(run),
-                reward_checkpoint=str(checkpoint), train_bf16=False, overlap_env=False)))
-    return configs
+    return drem_sac_configs([(task, Path(out) / scale / task / variant / "drem.pt",
+                              Path(out) / scale / "sac" / task / variant) for task, variant in jobs], seeds, steps)
 
 
 def copy_runs(configs) -> None:
     """The small files of every run into ``docs/results/ablation`` (``<scale>/<task>/<variant>/seed<S>``)."""
     for c in configs:
-        run = Path(c.out)
-        scale, _, task, variant, seed = run.parts[-5:]
-        dest = RESULTS / scale / task / variant / seed
-        dest.mkdir(parents=True, exist_ok=True)
-        for name in RUN_FILES:
-            if (run / name).is_file():
-                shutil.copyfile(run / name, dest / name)
+        scale, _, task, variant, seed = Path(c.out).parts[-5:]
+        copy_run_files(Path(c.out), RESULTS / scale / task / variant / seed)
 
 
 def sac_cell(folder: Path, steps: int) -> str:

@@ -7,6 +7,10 @@ and writes the examination's measures beside the recipe to ``docs/results/genera
 
     .venv/bin/python experiments/general_recipe.py --tasks PushCube-v1 StackCube-v1 --variants base
     .venv/bin/python experiments/general_recipe.py --tasks PlugCharger-v1 --variants base three_rounds
+    .venv/bin/python experiments/general_recipe.py --tasks PegInHole-v1 --variants even_path --seeds 0 1 2
+
+With ``--seeds``, state-preset SAC (50,000 steps) trains on each variant's reward through the sweep, two at a time,
+into ``<out>/<task>/sac/<variant>/seed<S>``, its small files copied beside the summary.
 """
 
 from __future__ import annotations
@@ -91,6 +95,7 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (
                  "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
 RESULTS = Path("docs/results/general_recipe")
+RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
 
 
 def recipe(variant: str) -> dict:
@@ -165,12 +170,35 @@ def add_build_time(work: Path, seconds: float) -> float:
     return total
 
 
+def drem_sac_configs(runs, seeds, steps: int) -> list:
+    """State-preset SAC configs, one per ``(task, reward checkpoint, folder)`` of ``runs`` and seed, into
+    ``<folder>/seed<S>`` (float32, the env in the trainer's process: as the shipped comparison's runs)."""
+    from drem_maniskill.rl.config import RLConfig
+
+    return [RLConfig.from_preset("state", task=task, reward="drem", seed=int(seed), steps=int(steps),
+                                 out=str(Path(folder) / f"seed{seed}"), reward_checkpoint=str(checkpoint),
+                                 train_bf16=False, overlap_env=False)
+            for task, checkpoint, folder in runs for seed in seeds]
+
+
+def copy_run_files(run: Path, dest: Path) -> None:
+    """A run's small files (``RUN_FILES``) into ``dest``, for the docs."""
+    import shutil
+
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in RUN_FILES:
+        if (run / name).is_file():
+            shutil.copyfile(run / name, dest / name)
+
+
 def main() -> None:
-    """Build every task x variant and write its summary."""
+    """Build every task x variant and write its summary; with ``--seeds``, train SAC on each through the sweep."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tasks", nargs="+", required=True)
     p.add_argument("--variants", nargs="+", default=["base"], choices=list(VARIANTS))
     p.add_argument("--out", default="outputs/general_recipe")
+    p.add_argument("--seeds", nargs="*", type=int, default=[], help="state SAC seeds on each built reward")
+    p.add_argument("--steps", type=int, default=50_000)
     args = p.parse_args()
     from drem_maniskill.pipeline.build_reward import build_reward
 
@@ -187,6 +215,15 @@ def main() -> None:
             dest.write_text(json.dumps(result, indent=1) + "\n")
             print(json.dumps({k: result[k] for k in ("task", "variant", "value_order_spearman",
                                                      "final_reward_auroc", "build_seconds")}), flush=True)
+    if args.seeds:
+        from drem_maniskill.rl.sweep import run_sweep
+
+        out = Path(args.out)
+        configs = drem_sac_configs([(t, out / t / v / "drem.pt", out / t / "sac" / v) for t in args.tasks
+                                    for v in args.variants], args.seeds, args.steps)
+        run_sweep(configs, out / "sac_logs")
+        for c in configs:  # <out>/<task>/sac/<variant>/seed<S> -> RESULTS/<task>/sac/<variant>/seed<S>
+            copy_run_files(Path(c.out), RESULTS / Path(c.out).relative_to(out))
 
 
 if __name__ == "__main__":
