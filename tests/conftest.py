@@ -45,6 +45,12 @@ def _close_envs():
     _cache.clear()
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _sb3_logs_in_pytest_tmp(tmp_path_factory):
+    """SB3 models that learn without a logger of ours write under pytest's temporary folder, not in /tmp itself."""
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
+
+
 @pytest.fixture(scope="session")
 def pipeline(tmp_path_factory):
     """Record one expert episode, sample a tiny tree, train a tiny reward (about a minute)."""
