@@ -98,7 +98,7 @@ def build(task: str, variant: str, scale: str, out: str) -> dict:
     result = dict(task=task, variant=variant, scale=scale, recipe=variant_recipe(task, variant, scale),
                   build_seconds=round(seconds), checkpoint=str(checkpoint),
                   **{k: quality.get(k) for k in ("value_order_spearman", "final_reward_auroc", "random_mean_reward",
-                                                 "success_rate")},
+                                                 "success_rate", "floor_beside_over_inserted")},
                   expert_end_heldout=sum(c[-1] for c in quality["expert_curves"]) / len(quality["expert_curves"]),
                   policy_final_mean={name: sum(c[-1] for c in curves) / len(curves)
                                      for name, curves in quality.get("curves", {}).items() if curves})
@@ -138,8 +138,8 @@ def sac_cell(folder: Path, steps: int) -> str:
 
 def table(scales, steps: int) -> str:
     """The ablation's table (markdown) from ``docs/results/ablation``: each variant's examination and its SAC."""
-    lines = ["| task | scale | variant | value order | AUROC | expert end, held-out | Direct Success end | build | "
-             f"state SAC at {steps:,} steps, per seed |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| task | scale | variant | value order | AUROC | expert end, held-out | Direct Success end | "
+             f"floor beside / inserted | build | state SAC at {steps:,} steps, per seed |", "| --- " * 10 + "|"]
     for scale in scales:
         for task_dir in sorted((RESULTS / scale).glob("*")):
             done = {p.stem: json.loads(p.read_text()) for p in task_dir.glob("*.json")}
@@ -151,7 +151,8 @@ def table(scales, steps: int) -> str:
                 lines.append(
                     f"| {task_dir.name} | {scale} | `{variant}` | {r['value_order_spearman']:.3f} | "
                     f"{r['final_reward_auroc']:.3f} | {r['expert_end_heldout']:.2f} | "
-                    f"{final.get('direct_success', float('nan')):.2f} | {build} | "
+                    f"{final.get('direct_success', float('nan')):.2f} | "
+                    f"{r.get('floor_beside_over_inserted', float('nan')):.2f} | {build} | "
                     f"{sac_cell(task_dir / variant, steps)} |")
     return "\n".join(lines)
 
