@@ -221,7 +221,7 @@ def main() -> None:
         out = Path(args.out)
         configs = drem_sac_configs([(t, out / t / v / "drem.pt", out / t / "sac" / v) for t in args.tasks
                                     for v in args.variants], args.seeds, args.steps)
-        run_sweep(configs, out / "sac_logs")
+        run_sweep(configs, out)  # the runs lie under out: each logs to out/logs/ by its own folder
         for c in configs:  # <out>/<task>/sac/<variant>/seed<S> -> RESULTS/<task>/sac/<variant>/seed<S>
             copy_run_files(Path(c.out), RESULTS / Path(c.out).relative_to(out))
 
