@@ -48,19 +48,20 @@ TWENTY_SMALL_TREES = {"demo": {"episodes": 20, "trees": 20}, "sampler": {"num_ch
                       "scene_swap": {"max_pairs": 125}}
 # The actors' pairwise position differences beside their poses: what is placed where relative to what.
 RELATIVE = {"train": {"model": {"poses_relative": True}}}
+# The expert-step action range on the demo's path walked in even steps of its median step (no slowed demo).
+EVEN_PATH = {"sampler": {"expert_step_scale": 4.0, "even_path": True}}
+# Lineages leaving the start region in twelve directions (the outward phase reads no geometry).
+OUTWARD = {"sampler": {"phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}}
+# The paper's 20,000 iterations.
+LONG_TRAINING = {"train": {"iterations": 20000}}
 # Variant -> the recipe parts merged over BASE, in order.
 VARIANTS = {
     "base": (),
     "expert_step_range": ({"sampler": {"expert_step_scale": 4.0}},),
-    # The expert-step range on the demo's path walked in even steps of its median step (no slowed demo).
-    "even_path": ({"sampler": {"expert_step_scale": 4.0, "even_path": True}},),
-    # Beside it, lineages leaving the start region in twelve directions (the outward phase reads no geometry).
-    "even_path_outward": ({"sampler": {"expert_step_scale": 4.0, "even_path": True,
-                                       "phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}},),
-    "even_path_long": ({"sampler": {"expert_step_scale": 4.0, "even_path": True}}, {"train": {"iterations": 20000}}),
-    "even_path_outward_long": ({"sampler": {"expert_step_scale": 4.0, "even_path": True,
-                                            "phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}},
-                               {"train": {"iterations": 20000}}),
+    "even_path": (EVEN_PATH,),
+    "even_path_outward": (EVEN_PATH, OUTWARD),
+    "even_path_long": (EVEN_PATH, LONG_TRAINING),
+    "even_path_outward_long": (EVEN_PATH, OUTWARD, LONG_TRAINING),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
     "three_rounds": (THREE_ROUNDS,),
