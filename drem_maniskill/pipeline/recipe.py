@@ -57,14 +57,21 @@ SECTION_DEFAULTS = {
 }
 SECTIONS = ("demo", "sampler", "scene_swap", "train", "rounds", "image_twin", "examine", "calibrate")
 
-# A task without a recipe file: the paper's sampler (M = 500, no extra phases), 20,000 iterations at 64 px, on a demo
-# recorded at the expert's own speed (one episode, seed 1000). Nothing in it reads the task's geometry.
+# A task without a recipe file: one demo recorded at the expert's own speed, the paper's sampler at M = 100 with
+# settings derived from the demo alone (random actions spanning four times the expert's step at each depth; the demo's
+# path walked in even steps of its median step, so a fast stretch leaves no gap in progress; twelve lineages from the
+# start region outward in world directions, level and downward, so a part pressed down beside its socket is a state
+# the tree holds, not one the reward guesses at), 20,000 iterations at 64 px. Nothing in it reads the task's geometry.
 GENERAL_DEFAULTS = {
+    "sampler": {"num_children": 100, "expert_step_scale": 4.0, "even_path": True,
+                "phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}},
     "train": {"iterations": 20_000, "pairs_per_batch": 16, "threads": 1, "model": {"image_size": 64}},
     "scales": {
-        "tiny": {"sampler": {"num_children": 4, "max_depth": 60}, "train": {"iterations": 50, "pairs_per_batch": 8},
-                 "examine": {"episodes": 1}},
-        "demo": {"sampler": {"num_children": 24}, "train": {"iterations": 500}, "examine": {"episodes": 3}},
+        "tiny": {"sampler": {"num_children": 4, "max_depth": 60,
+                             "phases": {"outward": {"depth": 1, "lineages": 2, "children": 2}}},
+                 "train": {"iterations": 50, "pairs_per_batch": 8}, "examine": {"episodes": 1}},
+        "demo": {"sampler": {"num_children": 24, "phases": {"outward": {"depth": 0}}}, "train": {"iterations": 500},
+                 "examine": {"episodes": 3}},
     },
 }
 

@@ -154,8 +154,14 @@ def test_an_unknown_scale_lists_the_scales(tmp_path):
 def test_a_task_without_a_recipe_file_gets_the_general_recipe_and_a_missing_file_is_named(tmp_path):
     general = load_recipe("NoRecipe-v1", "tiny")
     assert general.source == GENERAL and general.to_dict() == load_recipe("NoRecipe-v1", "tiny", GENERAL).to_dict()
-    assert general.sampler_config().phases_on() == {} and general.expert_file() is None
-    assert load_recipe("NoRecipe-v1").train_config().iterations == 20_000
+    assert general.expert_file() is None
+    full, demo = load_recipe("NoRecipe-v1"), load_recipe("NoRecipe-v1", "demo")
+    assert full.train_config().iterations == 20_000 and full.sampler_config().num_children == 100
+    assert full.sampler_config().even_path and full.sampler_config().expert_step_scale == 4.0
+    assert list(full.sampler_config().phases_on()) == list(general.sampler_config().phases_on()) == ["outward"]
+    assert demo.sampler_config().phases_on() == {}  # make demo's minutes: no outward depths
+    for scale in (general, demo, full):  # no phase of the general recipe asks the task for its socket geometry
+        assert not any(PHASES[name].needs_geometry for name in scale.sampler_config().phases_on())
     assert load_recipe("PegInHole-v1").source.endswith("tasks/PegInHole-v1/recipe.toml")  # a recipe file comes first
     with pytest.raises(RecipeError) as err:
         load_recipe("PegInHole-v1", recipe=tmp_path / "nothere.toml")

@@ -240,7 +240,9 @@ def test_actions_follow_the_experts_step_when_asked():
     # Depth 0 -> 1: the expert's last step (2 mm) at 2 cm per full action: 2 x 0.1 = 0.2.
     assert action_scale_at(0, ee, config, 0.02) == pytest.approx(0.2)
     assert action_scale_at(3, ee, config, 0.02) == pytest.approx(1.0)  # 2 x 1 cm = 2 cm: the whole range
-    assert action_scale_at(40, ee, config, 0.02) == pytest.approx(0.05)  # past the demo's start: no step, the floor
+    # Past the demo's start, a chain still short of it goes on at the demo's median step: (1 cm + 2 mm) / 2 = 6 mm.
+    assert action_scale_at(6, ee, config, 0.02) == action_scale_at(40, ee, config, 0.02) == pytest.approx(0.6)
+    assert action_scale_at(40, np.zeros((4, 8)), config, 0.02) == pytest.approx(0.05)  # a demo that never moves: floor
     assert action_scale_at(0, ee, SamplerConfig(action_scale=0.7), 0.02) == 0.7  # off: the fixed range
 
 

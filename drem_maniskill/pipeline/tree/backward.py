@@ -80,8 +80,11 @@ def action_scale_at(depth: int, expert_ee: np.ndarray, config: SamplerConfig, tr
     if config.expert_step_scale <= 0:
         return config.action_scale
     goal = len(expert_ee) - 1
-    a, b = max(goal - depth, 0), max(goal - depth - 1, 0)
-    step = float(np.linalg.norm(expert_ee[a, :3] - expert_ee[b, :3]))
+    if depth < goal:
+        step = float(np.linalg.norm(expert_ee[goal - depth, :3] - expert_ee[goal - depth - 1, :3]))
+    else:  # past the demo's first pose the target stays there: a chain still short of it goes on at the demo's pace
+        steps = np.linalg.norm(np.diff(expert_ee[:, :3], axis=0), axis=1)
+        step = float(np.median(steps[steps > 1e-6])) if (steps > 1e-6).any() else 0.0
     return float(np.clip(config.expert_step_scale * step / translation_limit, config.min_action_scale,
                          config.action_scale))
 
