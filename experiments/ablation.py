@@ -29,11 +29,11 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
-import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from general_recipe import add_build_time, copy_run_files, drem_sac_configs  # experiments/ is the script's folder
+# experiments/ is the script's folder
+from general_recipe import copy_run_files, drem_sac_configs, examination_measures, timed_build
 
 ORDER = ("paper", "expert_step", "slowed_demo", "outward", "rounds", "phases", "shipped")
 SCALES = {"pilot": dict(num_children=100, iterations=2000), "pilot_long": dict(num_children=100, iterations=20000),
@@ -86,20 +86,11 @@ def variants_of(task: str, wanted) -> list:
 
 def build(task: str, variant: str, scale: str, out: str) -> dict:
     """Build one variant (resuming) and write its examination summary; returns the summary."""
-    from drem_maniskill.pipeline.build_reward import build_reward
-
     work = Path(out) / scale / task / variant
-    start = time.time()
-    try:
-        checkpoint = build_reward(task, scale="full", out=work, recipe=variant_recipe(task, variant, scale))
-    finally:  # an interrupted build's time counts too: its rerun resumes it
-        seconds = add_build_time(work, time.time() - start)
+    checkpoint, seconds = timed_build(task, work, variant_recipe(task, variant, scale))
     quality = json.loads((work / "examination" / "quality.json").read_text())
     result = dict(task=task, variant=variant, scale=scale, recipe=variant_recipe(task, variant, scale),
-                  build_seconds=round(seconds), checkpoint=str(checkpoint),
-                  **{k: quality.get(k) for k in ("value_order_spearman", "final_reward_auroc", "random_mean_reward",
-                                                 "success_rate", "floor_beside_over_inserted")},
-                  expert_end_heldout=sum(c[-1] for c in quality["expert_curves"]) / len(quality["expert_curves"]),
+                  build_seconds=round(seconds), checkpoint=str(checkpoint), **examination_measures(quality),
                   policy_final_mean={name: sum(c[-1] for c in curves) / len(curves)
                                      for name, curves in quality.get("curves", {}).items() if curves})
     dest = RESULTS / scale / task / f"{variant}.json"

@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 from ablation import sac_cell  # experiments/ is the script's folder
-from general_recipe import add_build_time, copy_run_files, drem_sac_configs
+from general_recipe import STATE_RUN, copy_run_files, drem_sac_configs, examination_measures, timed_build
 
 RESULTS = Path("docs/results/general")
 BASELINES = ("sparse", "engineered")
@@ -28,21 +27,13 @@ BASELINES = ("sparse", "engineered")
 
 def build(task: str, out: Path) -> dict:
     """Build ``task``'s general-recipe reward (resuming) and write its examination summary; returns the summary."""
-    from drem_maniskill.pipeline.build_reward import build_reward
     from drem_maniskill.pipeline.recipe import GENERAL, load_recipe
 
     work = out / "build" / task
-    start = time.time()
-    try:
-        checkpoint = build_reward(task, scale="full", out=work, recipe=GENERAL)
-    finally:  # an interrupted build's time counts too: its rerun resumes it
-        seconds = add_build_time(work, time.time() - start)
+    checkpoint, seconds = timed_build(task, work, GENERAL)
     quality = json.loads((work / "quality.json").read_text())
     result = dict(task=task, recipe=load_recipe(task, "full", GENERAL).to_dict(), build_seconds=round(seconds),
-                  checkpoint=str(checkpoint),
-                  **{k: quality.get(k) for k in ("value_order_spearman", "final_reward_auroc", "random_mean_reward",
-                                                 "success_rate", "floor_beside_over_inserted")},
-                  expert_end_heldout=sum(c[-1] for c in quality["expert_curves"]) / len(quality["expert_curves"]))
+                  checkpoint=str(checkpoint), **examination_measures(quality))
     dest = RESULTS / task / "examination.json"
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(result, indent=1) + "\n")
@@ -54,9 +45,7 @@ def sac_configs(tasks, out: Path, seeds, baseline_seeds, steps: int) -> list:
     from drem_maniskill.rl.sweep import trial_config
 
     drem = drem_sac_configs([(t, out / "build" / t / "drem.pt", out / t / "drem") for t in tasks], seeds, steps)
-    # float32, the env in the trainer's process: as the DREM runs and the shipped comparison's runs.
-    same = dict(train_bf16=False, overlap_env=False)
-    return drem + [trial_config("state", t, r, s, steps, out, same) for t in tasks for r in BASELINES
+    return drem + [trial_config("state", t, r, s, steps, out, STATE_RUN) for t in tasks for r in BASELINES
                    for s in baseline_seeds]
 
 

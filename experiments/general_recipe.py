@@ -98,6 +98,8 @@ BUILDS_ON = {"three_rounds": ("base", True),
                  "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
 RESULTS = Path("docs/results/general_recipe")
 RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
+# float32, the env in the trainer's process: as the shipped comparison's runs.
+STATE_RUN = dict(train_bf16=False, overlap_env=False)
 
 
 def recipe(variant: str) -> dict:
@@ -172,6 +174,29 @@ def add_build_time(work: Path, seconds: float) -> float:
     return total
 
 
+def timed_build(task: str, work: Path, recipe) -> tuple:
+    """``build_reward`` at full scale into ``work`` (resuming); returns the checkpoint and the seconds spent building
+    ``work`` over every invocation, an interrupted one's included (its rerun resumes it)."""
+    from drem_maniskill.pipeline.build_reward import build_reward
+
+    start = time.time()
+    try:
+        checkpoint = build_reward(task, scale="full", out=work, recipe=recipe)
+    finally:
+        seconds = add_build_time(work, time.time() - start)
+    return checkpoint, seconds
+
+
+EXAM_MEASURES = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "success_rate",
+                 "floor_beside_over_inserted")
+
+
+def examination_measures(quality: dict) -> dict:
+    """The examination's measures a recipe is compared by (``EXAM_MEASURES``) and the expert's mean held-out end."""
+    return dict({k: quality.get(k) for k in EXAM_MEASURES},
+                expert_end_heldout=float(np.mean([c[-1] for c in quality["expert_curves"]])))
+
+
 def drem_sac_configs(runs, seeds, steps: int) -> list:
     """State-preset SAC configs, one per ``(task, reward checkpoint, folder)`` of ``runs`` and seed, into
     ``<folder>/seed<S>`` (float32, the env in the trainer's process: as the shipped comparison's runs)."""
@@ -179,7 +204,7 @@ def drem_sac_configs(runs, seeds, steps: int) -> list:
 
     return [RLConfig.from_preset("state", task=task, reward="drem", seed=int(seed), steps=int(steps),
                                  out=str(Path(folder) / f"seed{seed}"), reward_checkpoint=str(checkpoint),
-                                 train_bf16=False, overlap_env=False)
+                                 **STATE_RUN)
             for task, checkpoint, folder in runs for seed in seeds]
 
 
@@ -202,16 +227,13 @@ def main() -> None:
     p.add_argument("--seeds", nargs="*", type=int, default=[], help="state SAC seeds on each built reward")
     p.add_argument("--steps", type=int, default=50_000)
     args = p.parse_args()
-    from drem_maniskill.pipeline.build_reward import build_reward
-
     for task in args.tasks:
         for variant in args.variants:
             work = Path(args.out) / task / variant
             source, with_reward = BUILDS_ON.get(variant, (None, False))
             reuse_trees(work, Path(args.out) / task / source if source else None, with_reward)
-            start = time.time()
-            build_reward(task, scale="full", out=work, recipe=recipe(variant))
-            result = summary(task, variant, work, add_build_time(work, time.time() - start))
+            _, seconds = timed_build(task, work, recipe(variant))
+            result = summary(task, variant, work, seconds)
             dest = RESULTS / task / f"{variant}.json"
             dest.parent.mkdir(parents=True, exist_ok=True)
             dest.write_text(json.dumps(result, indent=1) + "\n")
