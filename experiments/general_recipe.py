@@ -52,6 +52,8 @@ RELATIVE = {"train": {"model": {"poses_relative": True}}}
 EVEN_PATH = {"sampler": {"expert_step_scale": 4.0, "even_path": True}}
 # Lineages leaving the start region in twelve directions (the outward phase reads no geometry).
 OUTWARD = {"sampler": {"phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}}
+# Lineages turning the part about the end effector's axes from the backward seeds nearest the goal (no geometry).
+TWIST = {"sampler": {"phases": {"twist": {"depth": 10}}}}
 # The paper's 20,000 iterations.
 LONG_TRAINING = {"train": {"iterations": 20000}}
 # Variant -> the recipe parts merged over BASE, in order.
@@ -62,6 +64,7 @@ VARIANTS = {
     "even_path_outward": (EVEN_PATH, OUTWARD),
     "even_path_long": (EVEN_PATH, LONG_TRAINING),
     "even_path_outward_long": (EVEN_PATH, OUTWARD, LONG_TRAINING),
+    "even_path_outward_twist_long": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
     "three_rounds": (THREE_ROUNDS,),
@@ -83,19 +86,22 @@ VARIANTS = {
                                                                        NO_IMAGES, SWAP, THREE_ROUNDS),
 }
 # A variant that changes what follows sampling starts from the demo and trees of the one it builds on (so both
-# measure the same trees) and, where it only adds rounds, from that one's reward too.
+# measure the same trees) and, where it only adds rounds, from that one's reward too. One that adds a growable phase
+# (``GROWS``) starts from those trees as partial ones: its sampling adds the phase to them.
 BUILDS_ON = {"three_rounds": ("base", True),
              "five_trees_three_rounds": ("five_trees", True),
              "five_trees_demo_seeds_three_rounds": ("five_trees_demo_seeds", True),
              "five_trees_128px": ("five_trees", False),
              "even_path_long": ("even_path", False),
              "even_path_outward_long": ("even_path_outward", False),
+             "even_path_outward_twist_long": ("even_path_outward_long", False),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
              "five_trees_poses_swap": ("five_trees_poses", False),
              "five_trees_poses_swap_three_rounds": ("five_trees_poses_swap", True),
              "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (
                  "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
+GROWS = {"even_path_outward_twist_long"}
 RESULTS = Path("docs/results/general_recipe")
 RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
 # float32, the env in the trainer's process: as the shipped comparison's runs.
@@ -150,9 +156,9 @@ def expert_end_on_demo_seeds(task: str, work: Path) -> float:
         env.close()
 
 
-def reuse_trees(work: Path, source, with_reward: bool) -> None:
+def reuse_trees(work: Path, source, with_reward: bool, grow: bool = False) -> None:
     """Start a variant (``BUILDS_ON``) from the demo and trees, and with ``with_reward`` the reward, of the variant
-    built in ``source``."""
+    built in ``source``; with ``grow``, the trees as partial ones, which its sampling goes on from."""
     import shutil
 
     if source is None or work.exists():
@@ -163,7 +169,7 @@ def reuse_trees(work: Path, source, with_reward: bool) -> None:
     for name in ("expert", "reward") if with_reward else ("expert",):
         shutil.copytree(source / name, work / name)
     for tree in source.glob("tree*.h5"):
-        shutil.copyfile(tree, work / tree.name)
+        shutil.copyfile(tree, work / (f"{tree.name}.partial" if grow else tree.name))
 
 
 def add_build_time(work: Path, seconds: float) -> float:
@@ -231,7 +237,7 @@ def main() -> None:
         for variant in args.variants:
             work = Path(args.out) / task / variant
             source, with_reward = BUILDS_ON.get(variant, (None, False))
-            reuse_trees(work, Path(args.out) / task / source if source else None, with_reward)
+            reuse_trees(work, Path(args.out) / task / source if source else None, with_reward, variant in GROWS)
             _, seconds = timed_build(task, work, recipe(variant))
             result = summary(task, variant, work, seconds)
             dest = RESULTS / task / f"{variant}.json"

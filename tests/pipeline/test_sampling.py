@@ -459,6 +459,59 @@ def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_label
 
 
 @pytest.mark.slow
+def test_twist_lineages_turn_the_part_about_the_end_effectors_axes_near_the_goal_and_end_where_it_cannot_turn(
+        pipeline, tmp_path, monkeypatch):
+    """Twist lineages start at the backward seeds nearest the goal, six per seed (the end effector's axes, each way);
+    every step a lineage keeps turns it farther about its axis by at least ``min_turn`` of a rotation step, labelled
+    its seed's depth plus the step; a lineage that cannot turn that far ends. A finished tree gains them by a resume,
+    an interrupted phase resumes, and no socket geometry is read."""
+    from drem_maniskill.pipeline.tree.phases.base import rotation_vectors
+    from drem_maniskill.pipeline.tree.phases.twist import AXES_PER_ORIGIN, twist_axes, twist_origin_depths
+
+    grown = tmp_path / "tree.h5"
+    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny"))
+    monkeypatch.setattr("drem_maniskill.envs.adapter.EnvAdapter.socket_geometry",
+                        lambda self: (_ for _ in ()).throw(AssertionError("read the socket geometry")))
+    config = SamplerConfig.preset("tiny", phases=dict(twist=dict(depth=3, children=6, reach=0.5, every=4)))
+    calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
+                                   lambda path, depth, chosen, kw: kw.get("group") == "twist_2")
+    assert calls[0] == "twist_2" and set(calls) <= {"twist_2", "twist_3"}  # nothing of the tree it grew from again
+    with h5py.File(grown, "r") as f:
+        start = int(f.attrs["start_depth"])
+        origins = twist_origin_depths(config.phases["twist"], start)
+        assert origins == list(range(1, -(-start // 2) + 1, 4)) and len(origins) >= 2
+        depth, parent, tcp = f["depth"][()], f["parent"][()], f["tcp_pose"][()].astype(np.float64)
+        first = np.repeat([int(f[f"seeds/depth_{d}/node"][0]) for d in origins], AXES_PER_ORIGIN)
+        axes = twist_axes(tcp[first[::AXES_PER_ORIGIN], 3:7])
+        # The end effector's own axes: orthonormal, each way.
+        frame = axes.reshape(len(origins), 3, 2, 3)[:, :, 0]
+        np.testing.assert_allclose(frame @ np.swapaxes(frame, 1, 2), np.broadcast_to(np.eye(3), frame.shape), atol=1e-6)
+        least = config.phases["twist"].min_turn * 0.05  # the controller turns up to 0.05 rad a step
+        live, turned, label, kids = np.arange(len(first)), np.zeros(len(first)), np.repeat(origins, 6), n
+        previous = first
+        for k in range(1, 4):
+            if f"seeds/twist_{k}" not in f:
+                break
+            group = f[f"seeds/twist_{k}"]
+            # Every live lineage's six children, labelled its seed's depth plus k.
+            step = np.arange(kids, kids + 6 * len(live))
+            assert np.array_equal(depth[step], np.repeat(label[live] + k, 6))
+            kids += len(step)
+            kept = group.attrs["lineage"]
+            assert set(kept) <= set(live)
+            seeds = group["node"][()]
+            about = np.einsum("lx,lx->l", rotation_vectors(tcp[seeds, 3:7], tcp[first[kept], 3:7]), axes[kept])
+            np.testing.assert_allclose(about, group.attrs["turned"], atol=1e-3)
+            assert np.all(about - turned[np.searchsorted(live, kept)] >= least - 1e-3)
+            assert np.array_equal(depth[seeds], label[kept] + k) and np.all(np.isin(seeds, step))
+            assert np.array_equal(parent[seeds], previous[np.searchsorted(live, kept)])  # each on its own lineage
+            live, turned, previous = kept, about, seeds
+        assert kids == len(depth) and int(f.attrs["twist_completed"]) == len(calls) + 1
+        # Free lineages turn more than a whole rotation step in three.
+        assert len(live) and turned.max() > 0.05
+
+
+@pytest.mark.slow
 def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_it(pipeline, tmp_path, monkeypatch):
     """Goal presses: children of the goal only, labelled depth 1, never seeds, pushed down on to the hole's floor
     and still in it, pressing harder than the goal's own children; a finished tree gains them by a resume that

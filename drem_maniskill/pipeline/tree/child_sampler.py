@@ -89,6 +89,16 @@ class ChildSampler:
         limit = getattr(getattr(arm, "config", None), "pos_upper", None)
         return float(np.max(limit)) if limit is not None else 1.0
 
+    @property
+    def rotation_limit(self) -> float:
+        """Radians a full-scale rotation action turns the end effector (a ``pd_ee_delta_pose`` arm's ``rot_lower``)."""
+        arm = getattr(self.unwrapped.agent.controller, "controllers", {}).get("arm")
+        limit = getattr(getattr(arm, "config", None), "rot_lower", None)
+        if limit is None:
+            raise ValueError("turning needs an end-effector delta pose arm controller (pd_ee_delta_pose), not "
+                             f"{arm or self.unwrapped.agent.controller}")
+        return float(np.max(np.abs(limit)))
+
     def random_colors(self, rng: np.random.Generator, count: int) -> Optional[np.ndarray]:
         """``count`` part and socket colours ``[count, 6]`` drawn as the task's resets draw them (None: no colours)."""
         if not self.adapter.colorable:
