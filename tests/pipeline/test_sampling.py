@@ -459,59 +459,110 @@ def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_label
         assert np.linalg.norm(face_turns, axis=1).max() < along[-1].min()
 
 
-@pytest.mark.slow
-def test_twist_lineages_turn_the_part_about_the_end_effectors_axes_near_the_goal_and_end_where_it_cannot_turn(
-        pipeline, tmp_path, monkeypatch):
-    """Twist lineages start at the backward seeds nearest the goal, six per seed (the end effector's axes, each way);
-    every step a lineage keeps turns it farther about its axis by at least ``min_turn`` of a rotation step, labelled
-    its seed's depth plus the step; a lineage that cannot turn that far ends. A finished tree gains them by a resume,
-    an interrupted phase resumes, and no socket geometry is read."""
-    from drem_maniskill.pipeline.tree.phases.base import rotation_vectors
-    from drem_maniskill.pipeline.tree.phases.twist import AXES_PER_ORIGIN, twist_axes, twist_origin_depths
+def _grow_near_goal_lineages(pipeline, tmp_path, monkeypatch, name: str, settings: dict, per_origin: int,
+                             progress, least: float) -> tuple:
+    """Grow the pipeline's finished tiny tree with the near-goal phase ``name`` (3 steps from every fourth of the first
+    half of its depths), interrupted in its second step and resumed, never reading the socket geometry; check what
+    every such phase does and return the tree's path, its origins' nodes and the live lineages' final progress.
 
+    Every step gives each live lineage ``settings["children"]`` children labelled its origin's depth plus the step; a
+    lineage keeps the child ``progress(tcp [n, 7], origin tcp [n, 7], lineage [n])`` puts farthest, gaining at least
+    ``least`` on the step before, and a lineage that gains less ends."""
     grown = tmp_path / "tree.h5"
     grown.with_name(grown.name + ".partial").write_bytes(Path(pipeline["tree"]).read_bytes())  # the tiny tree, finished
     with h5py.File(pipeline["tree"], "r") as f:
         n = len(f["depth"])
     monkeypatch.setattr("drem_maniskill.envs.adapter.EnvAdapter.socket_geometry",
                         lambda self: (_ for _ in ()).throw(AssertionError("read the socket geometry")))
-    config = SamplerConfig.preset("tiny", phases=dict(twist=dict(depth=3, children=6, reach=0.5, every=4)))
+    config = SamplerConfig.preset("tiny", phases={name: dict(depth=3, reach=0.5, every=4, **settings)})
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
-                                   lambda path, depth, chosen, kw: kw.get("group") == "twist_2")
-    assert calls[0] == "twist_2" and set(calls) <= {"twist_2", "twist_3"}  # nothing of the tree it grew from again
+                                   lambda path, depth, chosen, kw: kw.get("group") == f"{name}_2")
+    assert calls[0] == f"{name}_2" and set(calls) <= {f"{name}_2", f"{name}_3"}  # nothing of the tree it grew from
+    children = settings["children"]
     with h5py.File(grown, "r") as f:
         start = int(f.attrs["start_depth"])
-        origins = twist_origin_depths(config.phases["twist"], start)
-        assert origins == list(range(1, -(-start // 2) + 1, 4)) and len(origins) >= 2
+        origins = list(range(1, -(-start // 2) + 1, 4))  # every fourth of the first half
+        assert len(origins) >= 2
         depth, parent, tcp = f["depth"][()], f["parent"][()], f["tcp_pose"][()].astype(np.float64)
-        first = np.repeat([int(f[f"seeds/depth_{d}/node"][0]) for d in origins], AXES_PER_ORIGIN)
-        axes = twist_axes(tcp[first[::AXES_PER_ORIGIN], 3:7])
-        # The end effector's own axes: orthonormal, each way.
-        frame = axes.reshape(len(origins), 3, 2, 3)[:, :, 0]
-        np.testing.assert_allclose(frame @ np.swapaxes(frame, 1, 2), np.broadcast_to(np.eye(3), frame.shape), atol=1e-6)
-        least = config.phases["twist"].min_turn * 0.05  # the controller turns up to 0.05 rad a step
-        live, turned, label, kids = np.arange(len(first)), np.zeros(len(first)), np.repeat(origins, 6), n
-        previous = first
+        first = np.repeat([int(f[f"seeds/depth_{d}/node"][0]) for d in origins], per_origin)
+        live, gone, kids, previous = np.arange(len(first)), np.zeros(len(first)), n, first
+        label = np.repeat(origins, per_origin)
         for k in range(1, 4):
-            if f"seeds/twist_{k}" not in f:
+            if f"seeds/{name}_{k}" not in f:
                 break
-            group = f[f"seeds/twist_{k}"]
-            # Every live lineage's six children, labelled its seed's depth plus k.
-            step = np.arange(kids, kids + 6 * len(live))
-            assert np.array_equal(depth[step], np.repeat(label[live] + k, 6))
+            group = f[f"seeds/{name}_{k}"]
+            step = np.arange(kids, kids + children * len(live))
+            assert np.array_equal(depth[step], np.repeat(label[live] + k, children))
             kids += len(step)
-            kept = group.attrs["lineage"]
-            assert set(kept) <= set(live)
-            seeds = group["node"][()]
-            about = np.einsum("lx,lx->l", rotation_vectors(tcp[seeds, 3:7], tcp[first[kept], 3:7]), axes[kept])
-            np.testing.assert_allclose(about, group.attrs["turned"], atol=1e-3)
-            assert np.all(about - turned[np.searchsorted(live, kept)] >= least - 1e-3)
-            assert np.array_equal(depth[seeds], label[kept] + k) and np.all(np.isin(seeds, step))
+            kept, seeds = group.attrs["lineage"], group["node"][()]
+            assert set(kept) <= set(live) and np.all(np.isin(seeds, step))
+            along = progress(tcp[seeds], tcp[first[kept]], kept)
+            np.testing.assert_allclose(along, group.attrs["progress"], atol=1e-4)
+            assert np.all(along - gone[np.searchsorted(live, kept)] >= least - 1e-4)
+            # The best child of its step: none of its siblings went farther.
+            for lineage, seed in zip(kept, seeds):
+                row = np.searchsorted(live, lineage)
+                sibs = step[row * children:(row + 1) * children]
+                assert seed in sibs
+                assert progress(tcp[sibs], tcp[np.full(len(sibs), first[lineage])],
+                                np.full(len(sibs), lineage)).max() <= along[list(kept).index(lineage)] + 1e-6
+            assert np.array_equal(depth[seeds], label[kept] + k)
             assert np.array_equal(parent[seeds], previous[np.searchsorted(live, kept)])  # each on its own lineage
-            live, turned, previous = kept, about, seeds
-        assert kids == len(depth) and int(f.attrs["twist_completed"]) == len(calls) + 1
-        # Free lineages turn more than a whole rotation step in three.
-        assert len(live) and turned.max() > 0.05
+            live, gone, previous = kept, along, seeds
+        assert kids == len(depth) and int(f.attrs[f"{name}_completed"]) == len(calls) + 1
+    return grown, first[::per_origin], gone
+
+
+@pytest.mark.slow
+def test_twist_lineages_turn_the_part_about_the_end_effectors_axes_near_the_goal_and_end_where_it_cannot_turn(
+        pipeline, tmp_path, monkeypatch):
+    """Twist lineages: six per near-goal seed, about the end effector's own axes at the seed (orthonormal, each way),
+    each step turning farther by at least ``min_turn`` of the controller's 0.05 rad step."""
+    from drem_maniskill.pipeline.tree.phases.base import rotation_vectors
+    from drem_maniskill.pipeline.tree.phases.twist import AXES_PER_ORIGIN, twist_axes
+
+    axes = {}
+
+    def turned(tcp, origin, lineage):
+        return np.einsum("nx,nx->n", rotation_vectors(tcp[:, 3:7], origin[:, 3:7]), axes["all"][lineage])
+
+    with h5py.File(pipeline["tree"], "r") as f:
+        start = int(f.attrs["start_depth"])
+        q = f["tcp_pose"][()][[int(f[f"seeds/depth_{d}/node"][0]) for d in range(1, -(-start // 2) + 1, 4)], 3:7]
+    axes["all"] = twist_axes(q.astype(np.float64))
+    frame = axes["all"].reshape(len(q), 3, 2, 3)
+    np.testing.assert_allclose(frame[:, :, 0] @ np.swapaxes(frame[:, :, 0], 1, 2),
+                               np.broadcast_to(np.eye(3), (len(q), 3, 3)), atol=1e-6)
+    np.testing.assert_allclose(frame[:, :, 1], -frame[:, :, 0])
+    _, _, gone = _grow_near_goal_lineages(pipeline, tmp_path, monkeypatch, "twist", dict(children=6), AXES_PER_ORIGIN,
+                                          turned, least=0.25 * 0.05)
+    assert len(gone) and gone.max() > 0.05  # free lineages turn more than a whole rotation step in three
+
+
+@pytest.mark.slow
+def test_slide_lineages_move_the_part_across_its_approach_near_the_goal_and_end_where_it_cannot_move(
+        pipeline, tmp_path, monkeypatch):
+    """Slide lineages: four per near-goal seed, across the approach (from the last near-goal depth's seed to the goal),
+    each step moving farther by at least ``min_move`` of the step range (tiny: the whole 2 cm)."""
+    from drem_maniskill.pipeline.tree.phases.slide import approach_of, slide_directions
+
+    with h5py.File(pipeline["tree"], "r") as f:
+        start = int(f.attrs["start_depth"])
+        ends = f["tcp_pose"][()][[int(f[f"seeds/depth_{d}/node"][0]) for d in (-(-start // 2), 0)], :3]
+    approach = approach_of(pipeline["tree"], 0.5, start)
+    np.testing.assert_allclose(approach, (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0]), atol=1e-6)
+    directions = slide_directions(approach, 4)
+    np.testing.assert_allclose(directions @ approach, 0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1)
+    np.testing.assert_allclose(directions[:2], -directions[2:], atol=1e-9)  # spread evenly around it
+    every = np.tile(directions, (100, 1))
+
+    def moved(tcp, origin, lineage):
+        return np.einsum("nx,nx->n", tcp[:, :3] - origin[:, :3], every[lineage])
+
+    _, _, gone = _grow_near_goal_lineages(pipeline, tmp_path, monkeypatch, "slide", dict(children=6, lineages=4), 4,
+                                          moved, least=0.25 * 0.02)
+    assert len(gone) and gone.max() > 0.02  # free lineages move more than a whole step's range in three
 
 
 @pytest.mark.slow

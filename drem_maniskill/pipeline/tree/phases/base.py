@@ -3,10 +3,12 @@ helpers the phases share."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Optional
 
+import h5py
 import numpy as np
 import torch
 from mani_skill.utils.geometry.rotation_conversions import (
@@ -16,6 +18,7 @@ from mani_skill.utils.geometry.rotation_conversions import (
 )
 
 from drem_maniskill.envs.adapter import SocketGeometry
+from drem_maniskill.pipeline.tree import tree_file
 from drem_maniskill.pipeline.tree.child_sampler import ActionShape, ChildPool, ChildSampler
 from drem_maniskill.utils.progress import progress_bar
 
@@ -93,6 +96,73 @@ class PhaseContext:
         """A progress bar of this phase's steps."""
         return progress_bar(total=total, initial=initial, desc=f"{self.name} sampling", unit=unit,
                             enabled=self.progress)
+
+
+def near_goal_depths(reach: float, every: int, start_depth: int) -> list:
+    """The backward depths whose seeds start near-goal lineages: every ``every``-th (from depth 1) of the first
+    ``reach`` of the loop's ``start_depth`` depths."""
+    return list(range(1, max(1, math.ceil(reach * start_depth)) + 1, every))
+
+
+def grow_near_goal_lineages(ctx: PhaseContext, config: Any, group: str, counter: str, per_origin: int,
+                            progress: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                            least: Callable[[float], float], shape: Optional[ActionShape] = None) -> None:
+    """Grow ``per_origin`` lineages from each backward seed of ``near_goal_depths`` for ``config.depth`` steps
+    (``config``: a near-goal phase's settings, with ``depth``, ``reach``, ``every`` and ``children``).
+
+    At each step every live lineage gets ``config.children`` children within the backward loop's range at its origin
+    (reshaped by ``shape``), all labelled the origin's depth plus the step, and keeps the one that went farthest by
+    ``progress(ee [n, 7], lineage [n])`` (how far each child went its lineage's way from the lineage's origin); a
+    lineage whose best child gained less than ``least(range)`` on its last step ends there. Steps go to
+    ``seeds/<group>_<k>`` with the live lineages, their labels and progress for a resume; ``counter`` counts them.
+    """
+    depths = near_goal_depths(config.reach, config.every, ctx.start_depth)
+    with h5py.File(ctx.partial, "r") as f:
+        done = int(f.attrs.get(counter, 0))
+        if done == 0:
+            firsts = [tree_file.read_seeds(f[f"seeds/depth_{d}"]) for d in depths]
+            seeds, nodes = [s[0] for s, _ in firsts], [n[0] for _, n in firsts]
+            seeds, nodes = [s for s in seeds for _ in range(per_origin)], list(np.repeat(nodes, per_origin))
+            labels, live, gone = np.repeat(depths, per_origin), np.arange(len(seeds)), np.zeros(len(seeds))
+        else:
+            last = f[f"seeds/{group}_{done}"]
+            seeds, nodes = tree_file.read_seeds(last)
+            labels, live, gone = (np.asarray(last.attrs[k]) for k in ("label", "lineage", "progress"))
+    bar = ctx.bar(config.depth, done, unit="step")
+    for k in range(done, config.depth):
+        if not len(live):
+            break
+        merged, floor = {}, np.zeros(len(live))
+        # One range per origin depth: the backward loop's there, so a lineage moves as the loop's children did.
+        for label in np.unique(labels):
+            rows = np.flatnonzero(labels == label)
+            scale = ctx.backward_scale(int(label))
+            part = ctx.children_of([seeds[i] for i in rows], [nodes[i] for i in rows], k * 1000 + int(label),
+                                   config.children, scale, shape=shape)
+            part["lineage"] = np.repeat(rows, config.children)
+            merged = part if not merged else {key: np.concatenate([merged[key], part[key]]) for key in merged}
+            floor[rows] = least(scale)
+        order = np.argsort(merged.pop("lineage"), kind="stable")  # back to lineage order
+        merged = {key: value[order] for key, value in merged.items()}
+        along = progress(merged["ee"].astype(np.float64), np.repeat(live, config.children))
+        chosen = np.arange(len(live)) * config.children + along.reshape(len(live), -1).argmax(1)
+        best, labels = along[chosen], labels + 1
+        goes_on = best - gone >= floor
+        nodes = tree_file.append_depth(
+            ctx.partial, merged, np.repeat(labels, config.children), chosen[goes_on], group=f"{group}_{k + 1}",
+            counter=counter, count=k + 1,
+            attrs={"label": labels[goes_on], "lineage": live[goes_on], "progress": best[goes_on]})
+        seeds = tree_file.seeds_at(merged, chosen[goes_on])
+        labels, live, gone = labels[goes_on], live[goes_on], best[goes_on]
+        bar.update(1)
+    bar.close()
+
+
+def origin_poses(ctx: PhaseContext, reach: float, every: int) -> np.ndarray:
+    """The end-effector poses ``[origins, 7]`` at the backward seeds of ``near_goal_depths``."""
+    with h5py.File(ctx.partial, "r") as f:
+        nodes = [int(f[f"seeds/depth_{d}/node"][0]) for d in near_goal_depths(reach, every, ctx.start_depth)]
+        return f["tcp_pose"][()][nodes].astype(np.float64)
 
 
 def directions_at(count: int, elevation_deg) -> np.ndarray:

@@ -1,0 +1,84 @@
+"""The slide phase: lineages that move the held part sideways, across its approach, from the backward seeds nearest
+the goal (not in the paper).
+
+Near the goal the backward loop's children stay within the expert's small step of its path, so the tree holds few
+states where the part is near the goal but beside it (pressed on the socket's face a few millimetres off the opening,
+or hovering beside it), and a reward trained on them values those states arbitrarily. The approach is the direction
+the backward seeds moved in, from the seed of the last depth in ``reach`` to the goal; each lineage starts at a
+backward seed of that stretch and keeps the child that went farthest from it along one direction across the approach
+(``lineages`` of them, spread evenly around it); step ``k`` is labelled the seed's depth plus ``k``. A lineage whose
+best child moved less than ``min_move`` of the step range along its direction (the part held by what surrounds it)
+ends there. The phase reads the tree's own end-effector positions only, never the task's geometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import h5py
+import numpy as np
+
+from drem_maniskill.pipeline.tree.phases.base import Phase, PhaseContext, grow_near_goal_lineages, origin_poses
+
+
+@dataclass
+class SlideConfig:
+    """Settings of the slide phase."""
+
+    depth: int = 0
+    """Steps of every slide lineage (0: off)."""
+    lineages: int = 8
+    """Directions per origin, across the approach, spread evenly around it."""
+    reach: float = 0.5
+    """The lineages start at the backward seeds of this fraction of the depths to the start region, nearest the goal;
+    the approach runs from the last of them to the goal."""
+    every: int = 2
+    """Of those depths, every ``every``-th (from depth 1) starts lineages."""
+    children: int = 16
+    """Random actions per lineage and step, within the backward loop's range at the lineage's origin."""
+    min_move: float = 0.25
+    """A lineage ends when its best child moved less than this fraction of its step range along its direction."""
+
+
+def slide_directions(approach: np.ndarray, count: int) -> np.ndarray:
+    """Unit vectors ``[count, 3]`` across the unit vector ``approach``, spread evenly around it."""
+    helper = np.eye(3)[np.argmin(np.abs(approach))]  # the world axis farthest from the approach
+    u = np.cross(approach, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(approach, u)
+    angle = 2 * np.pi * np.arange(count) / count
+    return np.cos(angle)[:, None] * u + np.sin(angle)[:, None] * v
+
+
+def approach_of(path, reach: float, start_depth: int) -> np.ndarray:
+    """The unit direction the backward seeds move in towards the goal over the first ``reach`` of the loop's depths."""
+    last = max(1, int(np.ceil(reach * start_depth)))
+    with h5py.File(path, "r") as f:
+        tcp = f["tcp_pose"][()][[int(f[f"seeds/depth_{d}/node"][0]) for d in (last, 0)], :3].astype(np.float64)
+    approach = tcp[1] - tcp[0]
+    norm = np.linalg.norm(approach)
+    if norm < 1e-6:
+        raise ValueError(f"{path}: the backward seeds at depths {last} and 0 share a position, so the slide phase has "
+                         "no approach to move across; raise its reach")
+    return approach / norm
+
+
+def sample_slide(ctx: PhaseContext, config: SlideConfig) -> None:
+    """Lineage ``l`` keeps the child that went farthest from its origin along its direction (``slide_directions``)."""
+    origin = np.repeat(origin_poses(ctx, config.reach, config.every)[:, :3], config.lineages, axis=0)
+    approach = approach_of(ctx.partial, config.reach, ctx.start_depth)
+    directions = np.tile(slide_directions(approach, config.lineages), (len(origin) // config.lineages, 1))
+    limit = ctx.sampler.translation_limit
+
+    def moved(ee: np.ndarray, lineage: np.ndarray) -> np.ndarray:
+        """Metres each child went along its lineage's direction from the lineage's origin."""
+        return np.einsum("nx,nx->n", ee[:, :3] - origin[lineage], directions[lineage])
+
+    grow_near_goal_lineages(ctx, config, "slide", PHASE.counter, config.lineages, moved,
+                            lambda scale: config.min_move * scale * limit)
+
+
+PHASE = Phase(
+    name="slide", config=SlideConfig, sample=sample_slide, size="depth", counter="slide_completed", growable=True,
+    labels="the origin seed's depth + k at step k",
+)
