@@ -54,6 +54,8 @@ EVEN_PATH = {"sampler": {"expert_step_scale": 4.0, "even_path": True}}
 OUTWARD = {"sampler": {"phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}}
 # Lineages turning the part about the end effector's axes from the backward seeds nearest the goal (no geometry).
 TWIST = {"sampler": {"phases": {"twist": {"depth": 10}}}}
+# Lineages moving the part across its approach from the same seeds (no geometry).
+SLIDE = {"sampler": {"phases": {"slide": {"depth": 10}}}}
 # The paper's 20,000 iterations.
 LONG_TRAINING = {"train": {"iterations": 20000}}
 # Variant -> the recipe parts merged over BASE, in order.
@@ -65,6 +67,7 @@ VARIANTS = {
     "even_path_long": (EVEN_PATH, LONG_TRAINING),
     "even_path_outward_long": (EVEN_PATH, OUTWARD, LONG_TRAINING),
     "even_path_outward_twist_long": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING),
+    "even_path_outward_twist_slide_long": (EVEN_PATH, OUTWARD, TWIST, SLIDE, LONG_TRAINING),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
     "three_rounds": (THREE_ROUNDS,),
@@ -95,13 +98,14 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "even_path_long": ("even_path", False),
              "even_path_outward_long": ("even_path_outward", False),
              "even_path_outward_twist_long": ("even_path_outward_long", False),
+             "even_path_outward_twist_slide_long": ("even_path_outward_twist_long", False),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
              "five_trees_poses_swap": ("five_trees_poses", False),
              "five_trees_poses_swap_three_rounds": ("five_trees_poses_swap", True),
              "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (
                  "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
-GROWS = {"even_path_outward_twist_long"}
+GROWS = {"even_path_outward_twist_long", "even_path_outward_twist_slide_long"}
 RESULTS = Path("docs/results/general_recipe")
 RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
 # float32, the env in the trainer's process: as the shipped comparison's runs.
