@@ -119,6 +119,8 @@ def grow_near_goal_lineages(ctx: PhaseContext, config: Any, group: str, counter:
     depths = near_goal_depths(config.reach, config.every, ctx.start_depth)
     with h5py.File(ctx.partial, "r") as f:
         done = int(f.attrs.get(counter, 0))
+        if done >= config.depth:
+            return
         if done == 0:
             firsts = [tree_file.read_seeds(f[f"seeds/depth_{d}"]) for d in depths]
             seeds, nodes = [s[0] for s, _ in firsts], [n[0] for _, n in firsts]
