@@ -98,10 +98,25 @@ class PhaseContext:
                             enabled=self.progress)
 
 
+def near_goal_last(reach: float, start_depth: int) -> int:
+    """The last backward depth within the first ``reach`` of the loop's ``start_depth`` depths (at least 1)."""
+    return max(1, math.ceil(reach * start_depth))
+
+
 def near_goal_depths(reach: float, every: int, start_depth: int) -> list:
-    """The backward depths whose seeds start near-goal lineages: every ``every``-th (from depth 1) of the first
-    ``reach`` of the loop's ``start_depth`` depths."""
-    return list(range(1, max(1, math.ceil(reach * start_depth)) + 1, every))
+    """The backward depths whose seeds start near-goal lineages: every ``every``-th (from depth 1) up to
+    ``near_goal_last``."""
+    return list(range(1, near_goal_last(reach, start_depth) + 1, every))
+
+
+def full_range_rotation(rotation: list, full: float) -> ActionShape:
+    """An action shape with the ``rotation`` dims over the whole range ``full``, the others within the step's range."""
+
+    def shape(actions: np.ndarray, scale: float) -> np.ndarray:
+        actions[:, rotation] = actions[:, rotation] / scale * full
+        return actions
+
+    return shape
 
 
 def grow_near_goal_lineages(ctx: PhaseContext, config: Any, group: str, counter: str, per_origin: int,

@@ -18,7 +18,13 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
-from drem_maniskill.pipeline.tree.phases.base import Phase, PhaseContext, grow_near_goal_lineages, origin_poses
+from drem_maniskill.pipeline.tree.phases.base import (
+    Phase,
+    PhaseContext,
+    grow_near_goal_lineages,
+    near_goal_last,
+    origin_poses,
+)
 
 
 @dataclass
@@ -52,7 +58,7 @@ def slide_directions(approach: np.ndarray, count: int) -> np.ndarray:
 
 def approach_of(path, reach: float, start_depth: int) -> np.ndarray:
     """The unit direction the backward seeds move in towards the goal over the first ``reach`` of the loop's depths."""
-    last = max(1, int(np.ceil(reach * start_depth)))
+    last = near_goal_last(reach, start_depth)
     with h5py.File(path, "r") as f:
         tcp = f["tcp_pose"][()][[int(f[f"seeds/depth_{d}/node"][0]) for d in (last, 0)], :3].astype(np.float64)
     approach = tcp[1] - tcp[0]

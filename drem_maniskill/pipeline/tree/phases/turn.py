@@ -21,6 +21,7 @@ from drem_maniskill.pipeline.tree.phases.base import (
     PhaseContext,
     caught_penalty,
     farthest_along,
+    full_range_rotation,
     out_of_opening,
     rotation_vectors,
 )
@@ -102,15 +103,11 @@ def sample_turn(ctx: PhaseContext, config: TurnConfig) -> None:
     axes = turn_axes(config, origins)
     rotation, full = ctx.sampler.rotation_dims, ctx.config.action_scale
 
-    def turn(actions: np.ndarray, scale: float) -> np.ndarray:
-        """The rotation components over the whole range, the translation within ``scale``."""
-        actions[:, rotation] = actions[:, rotation] / scale * full
-        return actions
-
     scale = ctx.scale_for(ctx.config.phases["face"].step)
     bar = ctx.bar(config.depth, done)
     for k in range(done, config.depth):
-        merged = ctx.children_of(seeds, nodes, int(labels.min()), config.children, scale, shape=turn)
+        merged = ctx.children_of(seeds, nodes, int(labels.min()), config.children, scale,
+                                   shape=full_range_rotation(rotation, full))
         turned = rotation_vectors(merged["ee"][:, 3:7].astype(np.float64),
                                   np.repeat(start_q, config.children, axis=0))
         # As the other lineages go farthest along a direction in space, these go farthest about their axes.

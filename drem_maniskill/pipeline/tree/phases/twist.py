@@ -22,6 +22,7 @@ from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from drem_maniskill.pipeline.tree.phases.base import (
     Phase,
     PhaseContext,
+    full_range_rotation,
     grow_near_goal_lineages,
     origin_poses,
     rotation_vectors,
@@ -64,17 +65,13 @@ def sample_twist(ctx: PhaseContext, config: TwistConfig) -> None:
     origin_q = np.repeat(origin_q, AXES_PER_ORIGIN, axis=0)
     rotation, step = ctx.sampler.rotation_dims, ctx.sampler.rotation_limit * full
 
-    def twist(actions: np.ndarray, scale: float) -> np.ndarray:
-        """The rotation components over the whole range, the translation within ``scale``."""
-        actions[:, rotation] = actions[:, rotation] / scale * full
-        return actions
-
     def turned(ee: np.ndarray, lineage: np.ndarray) -> np.ndarray:
         """Radians each child turned about its lineage's axis since the lineage's origin."""
         return np.einsum("nx,nx->n", rotation_vectors(ee[:, 3:7], origin_q[lineage]), axes[lineage])
 
     grow_near_goal_lineages(ctx, config, "twist", PHASE.counter, AXES_PER_ORIGIN, turned,
-                            lambda scale: config.min_turn * step, shape=twist)
+                            lambda scale: config.min_turn * step,
+                            shape=full_range_rotation(rotation, full))
 
 
 PHASE = Phase(
