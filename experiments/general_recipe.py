@@ -56,6 +56,9 @@ OUTWARD = {"sampler": {"phases": {"outward": {"depth": 10, "lineages": 12, "chil
 TWIST = {"sampler": {"phases": {"twist": {"depth": 10}}}}
 # Lineages moving the part across its approach from the same seeds (no geometry).
 SLIDE = {"sampler": {"phases": {"slide": {"depth": 10}}}}
+# Two policy rounds whose SAC runs half the 50,000 steps the reward is judged at, so its policy reaches the states
+# a trained policy stops in (a 10,000-step policy has not left the start region on USB).
+TWO_LONG_ROUNDS = {"rounds": {"rounds": 2, "sac_steps": 25000, "episodes": 20, "iterations": 1000}}
 # The paper's 20,000 iterations.
 LONG_TRAINING = {"train": {"iterations": 20000}}
 # Variant -> the recipe parts merged over BASE, in order.
@@ -68,6 +71,7 @@ VARIANTS = {
     "even_path_outward_long": (EVEN_PATH, OUTWARD, LONG_TRAINING),
     "even_path_outward_twist_long": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING),
     "even_path_outward_twist_slide_long": (EVEN_PATH, OUTWARD, TWIST, SLIDE, LONG_TRAINING),
+    "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
     "three_rounds": (THREE_ROUNDS,),
@@ -99,6 +103,7 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "even_path_outward_long": ("even_path_outward", False),
              "even_path_outward_twist_long": ("even_path_outward_long", False),
              "even_path_outward_twist_slide_long": ("even_path_outward_twist_long", False),
+             "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
              "five_trees_poses_swap": ("five_trees_poses", False),
