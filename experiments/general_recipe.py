@@ -50,6 +50,8 @@ TWENTY_SMALL_TREES = {"demo": {"episodes": 20, "trees": 20}, "sampler": {"num_ch
 RELATIVE = {"train": {"model": {"poses_relative": True}}}
 # The expert-step action range on the demo's path walked in even steps of its median step (no slowed demo).
 EVEN_PATH = {"sampler": {"expert_step_scale": 4.0, "even_path": True}}
+# The even path graded toward the goal: each step a tenth of the way left, from a quarter of the median step up to it.
+GRADED = {"sampler": {"graded_path": 0.1, "graded_finest": 0.25}}
 # Lineages leaving the start region in twelve directions (the outward phase reads no geometry).
 OUTWARD = {"sampler": {"phases": {"outward": {"depth": 10, "lineages": 12, "children": 100}}}}
 # Lineages turning the part about the end effector's axes from the backward seeds nearest the goal (no geometry).
@@ -71,6 +73,7 @@ VARIANTS = {
     "even_path_outward_long": (EVEN_PATH, OUTWARD, LONG_TRAINING),
     "even_path_outward_twist_long": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING),
     "even_path_outward_twist_slide_long": (EVEN_PATH, OUTWARD, TWIST, SLIDE, LONG_TRAINING),
+    "graded_path_outward_twist_long": (EVEN_PATH, GRADED, OUTWARD, TWIST, LONG_TRAINING),
     "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -103,7 +106,8 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "even_path_outward_long": ("even_path_outward", False),
              "even_path_outward_twist_long": ("even_path_outward_long", False),
              "even_path_outward_twist_slide_long": ("even_path_outward_twist_long", False),
-             "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
+             "graded_path_outward_twist_long": (EVEN_PATH, GRADED, OUTWARD, TWIST, LONG_TRAINING),
+    "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
              "five_trees_poses_swap": ("five_trees_poses", False),

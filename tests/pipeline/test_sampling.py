@@ -267,6 +267,32 @@ def test_even_path_splits_the_demos_long_steps_into_its_median_step_and_keeps_it
         SamplerConfig(even_path=True, seeds_from_demo=True)
 
 
+def test_a_graded_path_crowds_its_depths_toward_the_goal_on_the_demos_own_path():
+    """graded_path: a straight 60 mm demo of 3 mm steps is walked from the goal in steps of a tenth of the way left,
+    0.75 mm (a quarter of the median step) at the goal up to the median step far from it, every pose on the demo's
+    path, the first and the goal kept."""
+    from drem_maniskill.pipeline.tree.backward import ee_distance, graded_path
+
+    z = np.arange(0.0, 0.0601, 0.003)[::-1]
+    ee = np.zeros((len(z), 8))
+    ee[:, 2], ee[:, 3] = z, 1.0
+    path = graded_path(ee, rotation_weight=0.05, fraction=0.1, finest=0.25)
+    steps = ee_distance(path[:-1], path[1:], 0.05)[::-1] * 1000  # mm, from the goal out
+    left = path[::-1, 2][1:] * 1000  # how far from the goal each step ends
+    np.testing.assert_array_equal(path[[0, -1]], ee[[0, -1]])
+    np.testing.assert_allclose(path[:, [0, 1, 3, 4, 5, 6, 7]], np.tile(ee[0, [0, 1, 3, 4, 5, 6, 7]], (len(path), 1)))
+    assert steps[0] == pytest.approx(0.75) and steps.max() == pytest.approx(3.0)
+    # a step is the first 0.75 mm multiple of at least a tenth of the way already walked, at most the median step
+    walked = left - steps
+    np.testing.assert_allclose(steps[:-1], np.clip(np.ceil(np.maximum(0.1 * walked[:-1], 0.75) / 0.75 - 1e-9) * 0.75,
+                                                   None, 3.0), atol=1e-9)
+    assert len(path) == 33 and (np.diff(path[:, 2]) < 0).all()  # 21 poses at 3 mm; more, and always nearer the goal
+    with pytest.raises(ValueError, match="turn even_path on"):
+        SamplerConfig(graded_path=0.1)
+    with pytest.raises(ValueError, match="graded_finest"):
+        SamplerConfig(even_path=True, graded_path=0.1, graded_finest=0.0)
+
+
 def test_lineages_never_keep_a_child_caught_in_the_opening_and_do_not_keep_the_children_that_went_in():
     """A face lineage takes a child on the face over a farther one caught in the opening's mouth, or, all caught,
     the least deep; a side lineage takes one beside the block over one in the opening; children in the opening are

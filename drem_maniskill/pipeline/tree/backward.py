@@ -51,17 +51,24 @@ def ee_distance(a: np.ndarray, b: np.ndarray, rotation_weight: float, gripper_we
     return dist
 
 
-def even_path(expert_ee: np.ndarray, rotation_weight: float) -> np.ndarray:
-    """The demo's end-effector path with every step split into equal parts of about its median step.
+def median_step(expert_ee: np.ndarray, rotation_weight: float) -> float:
+    """The demo's median end-effector step (``ee_distance``) among those that move; 0 for a demo that never moves."""
+    step = ee_distance(expert_ee[:-1], expert_ee[1:], rotation_weight)
+    moving = step[step > 1e-6]
+    return float(np.median(moving)) if len(moving) else 0.0
+
+
+def even_path(expert_ee: np.ndarray, rotation_weight: float, unit_scale: float = 1.0) -> np.ndarray:
+    """The demo's end-effector path with every step split into equal parts of about its median step (times
+    ``unit_scale``).
 
     Poses between two recorded ones are interpolated (position and gripper width linearly, the quaternion
     normalised-linearly). The recorded poses stay, the goal last; only the demo's own steps set the length.
     """
     step = ee_distance(expert_ee[:-1], expert_ee[1:], rotation_weight)
-    moving = step[step > 1e-6]
-    if not len(moving):
+    unit = median_step(expert_ee, rotation_weight) * unit_scale
+    if unit <= 0:
         return expert_ee
-    unit = float(np.median(moving))
     rows = [expert_ee[:1]]
     for a, b, length in zip(expert_ee[:-1], expert_ee[1:], step):
         parts = max(int(np.rint(length / unit)), 1)
@@ -73,6 +80,27 @@ def even_path(expert_ee: np.ndarray, rotation_weight: float) -> np.ndarray:
         mid[-1] = b  # the recorded pose itself, its quaternion's sign included
         rows.append(mid)
     return np.concatenate(rows).astype(expert_ee.dtype)
+
+
+def graded_path(expert_ee: np.ndarray, rotation_weight: float, fraction: float, finest: float) -> np.ndarray:
+    """The demo's path walked from the goal in steps of ``fraction`` of the path still left to the goal, between
+    ``finest`` times the demo's median step and the median step; returned start first, the goal last.
+
+    Near the goal the depths crowd (each moves the part a fixed share of the way that remains), so the reward's rise
+    steepens as the part nears its goal; far from it the path is ``even_path``'s. The poses are those of
+    ``even_path`` at ``finest`` times the median step, so every pose lies on the demo's path; its first pose stays.
+    """
+    unit = median_step(expert_ee, rotation_weight)
+    if unit <= 0:
+        return expert_ee
+    fine = even_path(expert_ee, rotation_weight, unit_scale=finest)
+    left = np.concatenate([np.cumsum(ee_distance(fine[:-1], fine[1:], rotation_weight)[::-1])[::-1], [0.0]])
+    keep, at = [len(fine) - 1], 0.0
+    for i in range(len(fine) - 2, -1, -1):  # away from the goal
+        if left[i] - at >= np.clip(fraction * at, finest * unit, unit) - 1e-9 or i == 0:
+            keep.append(i)
+            at = left[i]
+    return fine[keep[::-1]]
 
 
 def action_scale_at(depth: int, expert_ee: np.ndarray, config: SamplerConfig, translation_limit: float) -> float:
@@ -142,7 +170,9 @@ def backward_sample(expert_path: str, out_path: str, config: Optional[SamplerCon
         # The measure compares with the expert's end-effector states, read from its env states (not its
         # observations), so any demo with env_states works.
         expert_ee = sampler.expert_ee_states(expert.states)
-        if config.even_path:
+        if config.even_path and config.graded_path > 0:
+            expert_ee = graded_path(expert_ee, config.rotation_weight, config.graded_path, config.graded_finest)
+        elif config.even_path:
             expert_ee = even_path(expert_ee, config.rotation_weight)
         sampler.expert_first_ee = expert_ee[0]
         pool.start_workers(expert.env_id, expert.env_kwargs, expert.episode_seed, expert_ee[0], config.start_radius)

@@ -41,6 +41,13 @@ class SamplerConfig:
     """The progress measure walks the demo's end-effector path in equal steps of about the demo's median step,
     not at the demo's own pace (beyond the paper): a stretch the demo crossed in a few long steps (a fast final push)
     gets as many depths per centimetre as the rest, so the reward keeps rising there."""
+    graded_path: float = 0.0
+    """With ``even_path``, when > 0: near the goal each step of the walked path is this fraction of the path still
+    left to the goal, between ``graded_finest`` times the demo's median step and the median step (beyond the paper):
+    the depths crowd toward the goal, so the reward pays the last centimetres (a part at a socket's mouth against one
+    in it) more than an even path does."""
+    graded_finest: float = 0.25
+    """The finest step of ``graded_path``, as a fraction of the demo's median step."""
     min_action_scale: float = 0.05
     """The smallest arm action range (``expert_step_scale``, and the lineage phases' steps)."""
     rotation_weight: float = 0.05
@@ -81,6 +88,11 @@ class SamplerConfig:
         if self.seeds_from_demo and self.even_path:
             raise ValueError("seeds_from_demo starts each depth from the demo's own recorded state, which even_path's "
                              "interpolated poses do not have: turn one of them off")
+        if self.graded_path > 0 and not self.even_path:
+            raise ValueError("graded_path grades the path even_path walks: turn even_path on too")
+        if not 0 < self.graded_finest <= 1:
+            raise ValueError(f"graded_finest is a fraction of the demo's median step, in (0, 1]; got "
+                             f"{self.graded_finest}")
         unknown = [name for name in self.phases if name not in PHASES]
         if unknown:
             raise ValueError(f"unknown sampler phase {unknown[0]!r}; valid ones: {list(PHASES)}")
