@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 import torch
@@ -73,6 +73,9 @@ class CheckConfig:
     run: Optional[str] = None
     """A finished ``train-policy`` run (any reward, any preset) to examine instead of training one: its
     ``config.json`` gives the task, the reward and the inputs, its last checkpoint the policy."""
+    compare: Optional[str] = None
+    """Another DREM checkpoint of the task: the report also gives what it pays where each episode (the policy's and
+    the expert's) ends, on the same states (a reward that teaches against one that does not)."""
 
     def __post_init__(self):
         if self.steps <= self.learning_starts:
@@ -115,10 +118,11 @@ def task_measures(env) -> dict:
 
 
 def _episode_report(ep, objects: dict, expert_objects: Optional[dict], measures: Optional[dict] = None) -> dict:
-    """One policy episode: success, R per step, R at its end, and (failed) where its objects are."""
+    """One policy episode: success, R per step, R at its end (and the compared reward's), and (failed) where its
+    objects are."""
     rewards = np.asarray(ep.rewards, dtype=float)
     row = dict(seed=ep.seed, success=bool(ep.success), mean_reward=float(rewards.mean()),
-               end_reward=float(rewards[-LAST_STEPS:].mean()))
+               end_reward=float(rewards[-LAST_STEPS:].mean()), **_compared_end(ep, LAST_STEPS))
     if not ep.success:
         if measures:
             row["task_measures"] = measures
@@ -130,8 +134,30 @@ def _episode_report(ep, objects: dict, expert_objects: Optional[dict], measures:
     return row
 
 
-def expert_ends(run: RLConfig, seeds: Sequence[int]) -> Optional[dict]:
-    """The scripted expert on ``seeds`` under the reward: ``R`` at its end and its objects there; None without one."""
+def compared_reward(checkpoint: Optional[str], env) -> Optional[Callable]:
+    """``measure`` for ``rollout`` that records what the DREM reward of ``checkpoint`` pays each step (``R``, as
+    ``compare_reward``), or None without a checkpoint."""
+    if checkpoint is None:
+        return None
+    from drem_maniskill.drem.reward import DREMReward
+
+    other = DREMReward.from_checkpoint(checkpoint, env)
+
+    def measure(env, obs, action, info) -> dict:
+        return {"compare_reward": float(other.reward(env, None)[0])}
+
+    return measure
+
+
+def _compared_end(ep, last: int) -> dict:
+    """``{"compare_end_reward": ...}``: the compared reward over the episode's last ``last`` steps (none without)."""
+    values = ep.measures.get("compare_reward", [])
+    return {"compare_end_reward": float(np.mean(values[-last:]))} if values else {}
+
+
+def expert_ends(run: RLConfig, seeds: Sequence[int], compare: Optional[str] = None) -> Optional[dict]:
+    """The scripted expert on ``seeds`` under the reward: ``R`` at its end and its objects there (and what the
+    ``compare`` checkpoint pays there); None without one."""
     from drem_maniskill.rl.run_env import make_eval_env
 
     env = make_eval_env(dataclasses.replace(run, action_scale=1.0, drem_form="paper"))
@@ -140,11 +166,12 @@ def expert_ends(run: RLConfig, seeds: Sequence[int]) -> Optional[dict]:
             expert = get_policy("expert", env, seed=0)
         except ValueError:
             return None
+        measure = compared_reward(compare, env)
         ends = {}
         for seed in seeds:
-            ep = rollout(env, expert, int(seed), max_episode_steps(run.task), stop_on_success=True)
+            ep = rollout(env, expert, int(seed), max_episode_steps(run.task), stop_on_success=True, measure=measure)
             ends[int(seed)] = dict(success=bool(ep.success), end_reward=float(ep.rewards[-1]),
-                                   objects=moving_objects(env))
+                                   objects=moving_objects(env), **_compared_end(ep, 1))
         return ends
     finally:
         env.close()
@@ -211,7 +238,21 @@ def judge(rows: list, expert: Optional[dict], config: CheckConfig, curve: Sequen
         paid_failure_share=share,
         paid_evaluations=paid_evals,
         exploit=bool(paid_evals) or bool(threshold is not None and paid and share >= config.exploit_share),
+        **({"compare": compared_ends(rows, expert, config.compare)} if config.compare else {}),
     )
+
+
+def compared_ends(rows: list, expert: Optional[dict], checkpoint: str) -> dict:
+    """What the compared reward pays where the failed and the successful episodes end, and at the expert's end."""
+
+    def mean(values):
+        values = [v for v in values if v is not None]
+        return float(np.mean(values)) if values else None
+
+    return dict(checkpoint=checkpoint,
+                failed_end_reward=mean(r.get("compare_end_reward") for r in rows if not r["success"]),
+                success_end_reward=mean(r.get("compare_end_reward") for r in rows if r["success"]),
+                expert_end_reward=mean(e.get("compare_end_reward") for e in (expert or {}).values() if e["success"]))
 
 
 def check_reward(config: CheckConfig) -> dict:
@@ -230,13 +271,14 @@ def check_reward(config: CheckConfig) -> dict:
     task = run.task if config.run else check_env_id(config.task)
     out.mkdir(parents=True, exist_ok=True)
     seeds = [config.eval_seed + i for i in range(config.episodes)]
-    expert = expert_ends(run, seeds)
+    expert = expert_ends(run, seeds, config.compare)
     act = policy.act()
     env = make_eval_env(dataclasses.replace(run, drem_form="paper"))
     rows = []
     try:
+        measure = compared_reward(config.compare, env)
         for seed in seeds:
-            ep = rollout(env, act, seed, max_episode_steps(task), stop_on_success=False)
+            ep = rollout(env, act, seed, max_episode_steps(task), stop_on_success=False, measure=measure)
             rows.append(_episode_report(ep, moving_objects(env), expert[seed]["objects"] if expert else None,
                                         task_measures(env)))
     finally:
@@ -306,6 +348,10 @@ def summary_lines(report: dict) -> list:
                              + ", ".join(f"{k} {v:g}" for k, v in row["task_measures"].items()))
     if v["paid_evaluations"]:
         lines.append(f"  paid without success at steps {v['paid_evaluations']}")
+    if v.get("compare"):
+        c = v["compare"]
+        lines.append(f"  under {c['checkpoint']}: failed episodes end at R {fmt(c['failed_end_reward'])}, successful "
+                     f"ones at {fmt(c['success_end_reward'])}, the expert's end {fmt(c['expert_end_reward'])}")
     lines.append("  EXPLOIT: the reward pays failures like success" if v["exploit"]
                  else "  no exploit found")
     return lines

@@ -7,6 +7,7 @@ import json
 import pytest
 
 from drem_maniskill.cli import main
+from drem_maniskill.drem.checkpoint import default_checkpoint
 from drem_maniskill.evaluate.check_reward import CheckConfig, judge, markdown_table
 
 EXPERT = {0: dict(success=True, end_reward=1.0), 1: dict(success=True, end_reward=0.9)}  # ends at 0.95 on average
@@ -108,12 +109,21 @@ def test_a_reward_that_teaches_reports_no_exploit(tmp_path, capsys):
     assert all(e["task_measures"]["insertion_depth"] < 0.032 or not e["task_measures"]["is_aligned"] for e in failed)
     assert "the task's evaluate(): " in out and "insertion_depth" in out
 
-    # The same run examined again as a finished run: nothing trained, the same policy on the same seeds.
+    # The same run examined again as a finished run: nothing trained, the same policy on the same seeds; compared
+    # with its own checkpoint, the compared reward pays every end what the run's reward pays it.
     first = json.loads((tmp_path / "report.json").read_text())
-    assert main(["check-reward", "--run", str(tmp_path / "sac"), "--episodes", "2", "--out", str(tmp_path / "again")]) \
-        == 0
-    assert f"report: {tmp_path / 'again' / 'report.json'}" in capsys.readouterr().out
+    shipped = str(default_checkpoint("PegInHole-v1"))
+    assert main(["check-reward", "--run", str(tmp_path / "sac"), "--episodes", "2", "--out", str(tmp_path / "again"),
+                 "--compare", shipped]) == 0
+    out = capsys.readouterr().out
+    assert f"report: {tmp_path / 'again' / 'report.json'}" in out and f"under {shipped}: failed episodes end" in out
     again = json.loads((tmp_path / "again" / "report.json").read_text())
     assert again["sac"]["steps"] == 600 and again["sac"]["preset"] == "state" and again["reward"] == "drem"
     assert [(e["success"], round(e["end_reward"], 5)) for e in again["episodes"]] == \
         [(e["success"], round(e["end_reward"], 5)) for e in first["episodes"]]
+    assert all(e["compare_end_reward"] == pytest.approx(e["end_reward"], abs=1e-4) for e in again["episodes"])
+    compared = again["verdict"]["compare"]
+    assert compared["checkpoint"] == shipped
+    assert compared["failed_end_reward"] == pytest.approx(again["verdict"]["failed_end_reward"], abs=1e-4)
+    assert compared["expert_end_reward"] == pytest.approx(again["verdict"]["expert_end_reward"], abs=1e-4)
+    assert "compare" not in first["verdict"]
