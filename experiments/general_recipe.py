@@ -59,7 +59,7 @@ TWIST = {"sampler": {"phases": {"twist": {"depth": 10}}}}
 # Lineages moving the part across its approach from the same seeds (no geometry).
 SLIDE = {"sampler": {"phases": {"slide": {"depth": 10}}}}
 # Two policy rounds whose SAC runs half the 50,000 steps the reward is judged at, so its policy reaches the states
-# a trained policy stops in (a 10,000-step policy has not left the start region on USB).
+# a trained policy stops in (on USB no policy inserted the plug before 17,500 steps).
 TWO_LONG_ROUNDS = {"rounds": {"rounds": 2, "sac_steps": 25000, "episodes": 20, "iterations": 1000}}
 # The paper's 20,000 iterations.
 LONG_TRAINING = {"train": {"iterations": 20000}}
