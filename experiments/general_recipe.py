@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import time
 from pathlib import Path
 
@@ -197,10 +198,16 @@ def timed_build(task: str, work: Path, recipe) -> tuple:
     ``work`` over every invocation, an interrupted one's included (its rerun resumes it)."""
     from drem_maniskill.pipeline.build_reward import build_reward
 
+    def stopped(signum, frame):
+        raise SystemExit(128 + signum)
+
     start = time.time()
+    # A build stopped with SIGTERM (kill, a session's end) unwinds, so the time it spent is added below.
+    previous = signal.signal(signal.SIGTERM, stopped)
     try:
         checkpoint = build_reward(task, scale="full", out=work, recipe=recipe)
     finally:
+        signal.signal(signal.SIGTERM, previous)
         seconds = add_build_time(work, time.time() - start)
     return checkpoint, seconds
 
