@@ -4,8 +4,9 @@ Each task's reward is built with the general recipe (``recipe="default"``, even 
 own) into ``<out>/build/<task>``; state-preset SAC then trains on it to 50,000 steps (``--seeds``) into
 ``<out>/<task>/drem/seed<S>``, and on ``sparse`` and ``engineered`` (``--baseline-seeds``) beside it, all through the
 sweep, two at a time. Rerunning the same command resumes every build and run. Written to ``docs/results/general/``:
-``<task>/examination.json`` (the build's measures, its time and recipe) and each run's small files under
-``<task>/<reward>/seed<S>/``; ``--table`` prints the table of ``docs/results.md`` from them.
+``<task>/examination.json`` (the build's measures, its time and recipe), ``<task>/build/`` (its checkpoint,
+examination and recipe: where ``<out>`` lacks them, a rerun restores them instead of building again) and each run's
+small files under ``<task>/<reward>/seed<S>/``; ``--table`` prints the table of ``docs/results.md`` from them.
 
     .venv/bin/python experiments/general.py --tasks SquarePegInHole-v1 DPegInHole-v1 --seeds 0 1
     .venv/bin/python experiments/general.py --tasks PegInHole-v1 --seeds 0 1 2 --baseline-seeds
@@ -30,7 +31,7 @@ def build(task: str, out: Path) -> dict:
     from drem_maniskill.pipeline.recipe import GENERAL, load_recipe
 
     work = out / "build" / task
-    checkpoint, seconds = timed_build(task, work, GENERAL)
+    checkpoint, seconds = timed_build(task, work, GENERAL, keep=RESULTS / task / "build")
     quality = json.loads((work / "quality.json").read_text())
     result = dict(task=task, recipe=load_recipe(task, "full", GENERAL).to_dict(), build_seconds=round(seconds),
                   checkpoint=str(checkpoint), **examination_measures(quality))

@@ -4,6 +4,9 @@ Each variant is a recipe (a dict, the sections of ``tasks/<id>/recipe.toml``) th
 no phases, no geometry, only the demo of its scripted expert, its success signal and its own cameras. The script
 runs ``build_reward`` for every task x variant into ``<out>/<task>/<variant>`` (resumable: rerun the same command)
 and writes the examination's measures beside the recipe to ``docs/results/general_recipe/<task>/<variant>.json``.
+A finished build's checkpoint, examination and recipe are kept in
+``docs/results/general_recipe/<task>/build/<variant>/``; where ``<out>`` lacks them (another machine), a rerun takes
+them from there instead of building again.
 
     .venv/bin/python experiments/general_recipe.py --tasks PushCube-v1 StackCube-v1 --variants base
     .venv/bin/python experiments/general_recipe.py --tasks PlugCharger-v1 --variants base three_rounds
@@ -193,10 +196,54 @@ def add_build_time(work: Path, seconds: float) -> float:
     return total
 
 
-def timed_build(task: str, work: Path, recipe) -> tuple:
+# What a finished build leaves at its work folder's top that SAC and the summaries read: kept beside the results, a
+# later machine (whose outputs/ are gone) restores them instead of building again.
+KEPT = ("drem.pt", "quality.json", "recipe.json", "build_seconds.json")
+
+
+def keep_build(work: Path, keep: Path) -> None:
+    """Copy a finished build's products (``KEPT``) from ``work`` into ``keep``."""
+    from drem_maniskill.utils.atomic import copy_file
+
+    keep.mkdir(parents=True, exist_ok=True)
+    for name in KEPT:
+        if (work / name).is_file():
+            copy_file(work / name, keep / name)
+
+
+def restore_build(work: Path, keep: Path, r) -> bool:
+    """Copy a build kept in ``keep`` into ``work`` where ``work`` holds no finished build; a kept build of another
+    recipe than ``r`` is refused (``RecipeError``). Returns whether it restored one."""
+    from drem_maniskill.pipeline.build_reward import check_same_recipe
+    from drem_maniskill.pipeline.recipe import RecipeError
+    from drem_maniskill.utils.atomic import copy_file
+
+    if (work / "drem.pt").is_file() or not (keep / "drem.pt").is_file():
+        return False
+    if not (keep / "recipe.json").is_file():
+        raise RecipeError(f"{keep} holds a checkpoint without its recipe.json: delete {keep} to build again")
+    check_same_recipe(keep / "recipe.json", r)
+    work.mkdir(parents=True, exist_ok=True)
+    for name in KEPT:
+        if (keep / name).is_file():
+            copy_file(keep / name, work / name)
+    return True
+
+
+def timed_build(task: str, work: Path, recipe, keep: Path = None) -> tuple:
     """``build_reward`` at full scale into ``work`` (resuming); returns the checkpoint and the seconds spent building
-    ``work`` over every invocation, an interrupted one's included (its rerun resumes it)."""
-    from drem_maniskill.pipeline.build_reward import build_reward
+    ``work`` over every invocation, an interrupted one's included (its rerun resumes it). With ``keep``, a finished
+    build is copied there, and one found there (and not in ``work``) is restored instead of built."""
+    from drem_maniskill.pipeline.build_reward import build_reward, check_same_recipe
+    from drem_maniskill.pipeline.recipe import load_recipe
+
+    r = load_recipe(task, "full", recipe)
+    if keep is not None:
+        restore_build(work, keep, r)
+    if all((work / name).is_file() for name in ("drem.pt", "quality.json", "build_seconds.json")):
+        # A finished build (its products are copied to the top last); restored, it has no trees to skip stages by.
+        check_same_recipe(work / "recipe.json", r)
+        return work / "drem.pt", json.loads((work / "build_seconds.json").read_text())["seconds"]
 
     def stopped(signum, frame):
         raise SystemExit(128 + signum)
@@ -209,6 +256,8 @@ def timed_build(task: str, work: Path, recipe) -> tuple:
     finally:
         signal.signal(signal.SIGTERM, previous)
         seconds = add_build_time(work, time.time() - start)
+    if keep is not None:
+        keep_build(work, keep)
     return checkpoint, seconds
 
 
@@ -257,7 +306,7 @@ def main() -> None:
             work = Path(args.out) / task / variant
             source, with_reward = BUILDS_ON.get(variant, (None, False))
             reuse_trees(work, Path(args.out) / task / source if source else None, with_reward, variant in GROWS)
-            _, seconds = timed_build(task, work, recipe(variant))
+            _, seconds = timed_build(task, work, recipe(variant), keep=RESULTS / task / "build" / variant)
             result = summary(task, variant, work, seconds)
             dest = RESULTS / task / f"{variant}.json"
             dest.parent.mkdir(parents=True, exist_ok=True)
