@@ -198,7 +198,7 @@ def add_build_time(work: Path, seconds: float) -> float:
 
 # What a finished build leaves at its work folder's top that SAC and the summaries read: kept beside the results, a
 # later machine (whose outputs/ are gone) restores them instead of building again.
-KEPT = ("drem.pt", "quality.json", "recipe.json", "build_seconds.json")
+KEPT = ("drem.pt", "quality.json", "examination.png", "recipe.json", "build_seconds.json")
 
 
 def keep_build(work: Path, keep: Path) -> None:

@@ -46,7 +46,7 @@ def test_a_kept_build_is_restored_instead_of_built_and_one_of_another_recipe_is_
     def built(task, scale, out, recipe):
         out.mkdir(parents=True, exist_ok=True)
         (out / "recipe.json").write_text(json.dumps(load_recipe(task, scale, recipe).to_dict()))
-        for name in ("drem.pt", "quality.json"):
+        for name in ("drem.pt", "quality.json", "examination.png"):
             (out / name).write_text(name)
         return out / "drem.pt"
 
