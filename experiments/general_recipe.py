@@ -201,14 +201,14 @@ def add_build_time(work: Path, seconds: float) -> float:
 KEPT = ("drem.pt", "quality.json", "examination.png", "recipe.json", "build_seconds.json")
 
 
-def keep_build(work: Path, keep: Path) -> None:
-    """Copy a finished build's products (``KEPT``) from ``work`` into ``keep``."""
+def copy_kept(source: Path, dest: Path) -> None:
+    """Copy a build's products (``KEPT``) that ``source`` holds into ``dest``: to keep a build, or to restore it."""
     from drem_maniskill.utils.atomic import copy_file
 
-    keep.mkdir(parents=True, exist_ok=True)
+    dest.mkdir(parents=True, exist_ok=True)
     for name in KEPT:
-        if (work / name).is_file():
-            copy_file(work / name, keep / name)
+        if (source / name).is_file():
+            copy_file(source / name, dest / name)
 
 
 def restore_build(work: Path, keep: Path, r) -> bool:
@@ -216,17 +216,13 @@ def restore_build(work: Path, keep: Path, r) -> bool:
     recipe than ``r`` is refused (``RecipeError``). Returns whether it restored one."""
     from drem_maniskill.pipeline.build_reward import check_same_recipe
     from drem_maniskill.pipeline.recipe import RecipeError
-    from drem_maniskill.utils.atomic import copy_file
 
     if (work / "drem.pt").is_file() or not (keep / "drem.pt").is_file():
         return False
     if not (keep / "recipe.json").is_file():
         raise RecipeError(f"{keep} holds a checkpoint without its recipe.json: delete {keep} to build again")
     check_same_recipe(keep / "recipe.json", r)
-    work.mkdir(parents=True, exist_ok=True)
-    for name in KEPT:
-        if (keep / name).is_file():
-            copy_file(keep / name, work / name)
+    copy_kept(keep, work)
     return True
 
 
@@ -257,7 +253,7 @@ def timed_build(task: str, work: Path, recipe, keep: Path = None) -> tuple:
         signal.signal(signal.SIGTERM, previous)
         seconds = add_build_time(work, time.time() - start)
     if keep is not None:
-        keep_build(work, keep)
+        copy_kept(work, keep)
     return checkpoint, seconds
 
 
