@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import os
 
 import gymnasium as gym
 import pytest
 import torch
+from filelock import FileLock
 
 from drem_maniskill.drem.checkpoint import default_checkpoint, save_checkpoint
 from drem_maniskill.drem.model import DREMModel, ModelConfig
@@ -53,12 +55,22 @@ def _sb3_logs_in_pytest_tmp(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def pipeline(tmp_path_factory):
-    """Record one expert episode, sample a tiny tree, train a tiny reward (about a minute)."""
-    root = tmp_path_factory.mktemp("drem")
-    rec = record_expert("PegInHole-v1", str(root / "expert"), seeds=[5], obs_mode="rgb")
-    tree = backward_sample(rec.h5_path, str(root / "tree.h5"), SamplerConfig.preset("tiny"), progress=False)
-    ckpt = train_reward(tree, str(root / "reward"), TrainConfig.preset("tiny"), progress=False)
-    return dict(root=root, expert=rec.h5_path, tree=tree, checkpoint=ckpt)
+    """Record one expert episode, sample a tiny tree, train a tiny reward (about a minute); read-only for tests.
+
+    Built once per test run: under xdist the first worker to need it builds it in the run's shared temporary folder
+    while the others wait on its lock, then read what it wrote.
+    """
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    root = shared / "drem_pipeline"
+    with FileLock(str(shared / "drem_pipeline.lock")):
+        done = root / "pipeline.json"
+        if not done.is_file():
+            rec = record_expert("PegInHole-v1", str(root / "expert"), seeds=[5], obs_mode="rgb")
+            tree = backward_sample(rec.h5_path, str(root / "tree.h5"), SamplerConfig.preset("tiny"), progress=False)
+            ckpt = train_reward(tree, str(root / "reward"), TrainConfig.preset("tiny"), progress=False)
+            done.write_text(json.dumps(dict(expert=str(rec.h5_path), tree=str(tree), checkpoint=str(ckpt))))
+    return dict(root=root, **json.loads(done.read_text()))
 
 
 def tiny_checkpoint(path, env_id: str, modalities=("fixed", "wrist", "ft"),

@@ -259,15 +259,6 @@ def test_chain_record_sample_train_examine(tmp_path):
     assert (tmp_path / "exam" / "examination.png").stat().st_size > 10_000
 
 
-@pytest.mark.slow
-def test_demo_writes_its_plots(tmp_path):
-    out = run("demo", "--out", str(tmp_path / "demo"), "--tasks", "PegInHole-v1", "--scale", "tiny")
-    assert "reward checkpoint:" in out
-    summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
-    for plot in summary["PegInHole-v1"]["plots"]:
-        assert Path(plot).stat().st_size > 2_000, plot
-
-
 @pytest.mark.parametrize("argv", [
     ["train-policy", "--task", "NoSuchTask-v1", "--steps", "8"],
     ["record-expert", "--task", "NoSuchTask-v1"],

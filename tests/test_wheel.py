@@ -1,11 +1,13 @@
 """A wheel can build a reward: it carries the recipes and committed demos, and ``build-reward`` finds them installed.
 
 The end-to-end test builds the wheel from a copy of the sources, installs it into a fresh venv that sees this
-venv's dependencies but not this checkout, and runs ``drem-maniskill build-reward --scale tiny`` there.
+venv's dependencies but not this checkout, and runs ``drem-maniskill demo --scale tiny`` there: the README's demo,
+whose reward build reads the installed recipe and demo, ending in its plots.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -107,7 +109,7 @@ def _wheel_venv(tmp_path: Path) -> Path:
 
 
 @pytest.mark.slow
-def test_an_installed_wheel_builds_a_tiny_reward_from_its_own_recipe_and_demo(tmp_path):
+def test_an_installed_wheel_runs_the_demo_building_a_tiny_reward_from_its_own_recipe_and_demo(tmp_path):
     venv = _wheel_venv(tmp_path)
     work = tmp_path / "work"
     work.mkdir()
@@ -118,13 +120,17 @@ def test_an_installed_wheel_builds_a_tiny_reward_from_its_own_recipe_and_demo(tm
     assert Path(where.stdout.strip()).is_relative_to(venv), where.stdout
 
     checkout = _snapshot(ROOT / "rewards", ROOT / "tasks")
-    build = _run([venv / "bin" / "drem-maniskill", "build-reward", "--task", "PegInHole-v1", "--scale", "tiny"],
-                 work, env, timeout=1800)
+    build = _run([venv / "bin" / "drem-maniskill", "demo", "--out", work / "demo", "--tasks", "PegInHole-v1",
+                  "--scale", "tiny"], work, env, timeout=1800)
     installed = venv / SHARE_TASKS / "PegInHole-v1"
     assert f"recipe {installed / 'recipe.toml'}, scale tiny" in build.stderr, build.stderr[-3000:]
     assert f"demo: the committed {installed / 'expert.h5'}" in build.stderr, build.stderr[-3000:]
-    out = work / "outputs" / "build_reward" / "PegInHole-v1" / "tiny"
+    assert "reward checkpoint:" in build.stdout, build.stdout[-3000:]
+    out = work / "demo" / "PegInHole-v1"
     assert all((out / name).is_file() for name in PUBLISHED.values())
+    summary = json.loads((work / "demo" / "summary.json").read_text())
+    for plot in summary["PegInHole-v1"]["plots"]:  # the demo's drawings and the examination's
+        assert Path(plot).is_relative_to(out) and Path(plot).stat().st_size > 2_000, plot
     header, _ = load_checkpoint(str(out / "drem.pt"))
     assert header["env_id"] == "PegInHole-v1" and header["train"]["iterations"] == 50
     assert header["sampler"]["num_children"] == 4 and header["modalities"] == ["fixed", "wrist", "ft"]

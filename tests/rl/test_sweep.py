@@ -178,9 +178,15 @@ def test_a_folder_holding_another_run_stops_the_sweep_before_ray(tmp_path, monke
         run_sweep([config], tmp_path)
 
 
+# Two state-preset trials of 1,000 steps, checkpointed at 500: nothing renders, so the trials reach their first
+# checkpoint in seconds and still have half their run ahead when the sweep is killed there.
+KILLED = ["--steps", "1000", "--eval-every", "500", "--eval-episodes", "1", "--learning-starts", "150",
+          "--batch-size", "16"]
+
+
 def _sweep(out: Path) -> list:
     return [sys.executable, "-m", "drem_maniskill.cli", "sweep", "--tasks", "PegInHole-v1", "--rewards", "sparse",
-            "drem", "--seeds", "0", "--preset", "light", "--out", str(out), *TINY]
+            "dense", "--seeds", "0", "--preset", "state", "--out", str(out), *KILLED]
 
 
 def _wait_until_no_one_trains(run: Path, wait_s: float = 120) -> None:
@@ -200,7 +206,7 @@ def _step(run: Path) -> int:
 def test_a_sweep_on_local_ray_killed_and_rerun_finishes_every_run(tmp_path):
     """Two trials on local Ray; the sweep is killed at the first checkpoint, rerun, then rerun once more (a no-op)."""
     out = tmp_path / "sweep"
-    runs = {reward: out / "PegInHole-v1" / reward / "seed0" for reward in ("sparse", "drem")}
+    runs = {reward: out / "PegInHole-v1" / reward / "seed0" for reward in ("sparse", "dense")}
     with open(tmp_path / "first.log", "w") as log:
         proc = subprocess.Popen(_sweep(out), stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.time() + 300
@@ -216,14 +222,15 @@ def test_a_sweep_on_local_ray_killed_and_rerun_finishes_every_run(tmp_path):
     second = subprocess.run(_sweep(out), capture_output=True, text=True, timeout=600)
     assert second.returncode == 0, second.stdout[-3000:] + second.stderr[-3000:]
     for reward, run in runs.items():
-        assert [r["steps"] for r in read_eval_csv(run / "eval.csv")] == [0, 100, 200]
+        assert [r["steps"] for r in read_eval_csv(run / "eval.csv")] == [0, 500, 1000]
         assert RLConfig.load(run / "config.json").reward == reward
-        if 0 < at_kill[reward] < 200:  # resumed from the checkpoint it had
-            assert f"start light PegInHole-v1 {reward} seed0 (from step {at_kill[reward]}" in second.stdout
+        if 0 < at_kill[reward] < 1000:  # resumed from the checkpoint it had
+            assert f"start state PegInHole-v1 {reward} seed0 (from step {at_kill[reward]}" in second.stdout
             assert (run / "sb3" / f"from{at_kill[reward]}" / "progress.csv").exists()
         elif at_kill[reward] == 0:
-            assert f"done light PegInHole-v1 {reward} seed0: success" in second.stdout
-    assert (out / "logs" / "light-PegInHole-v1-drem-seed0.log").exists()
+            assert f"done state PegInHole-v1 {reward} seed0: success" in second.stdout
+    assert 0 < min(v for v in at_kill.values() if v) < 1000, at_kill  # the sweep was killed mid-run, not after it
+    assert (out / "logs" / "state-PegInHole-v1-dense-seed0.log").exists()
     assert "failed" not in second.stdout.split("[sweep] summary")[-1].replace("0 failed", "")
 
     third = subprocess.run(_sweep(out), capture_output=True, text=True, timeout=300)
@@ -233,4 +240,4 @@ def test_a_sweep_on_local_ray_killed_and_rerun_finishes_every_run(tmp_path):
     from drem_maniskill.rl.compare import compare_runs
 
     rows = compare_runs(list(runs.values()), str(tmp_path / "cmp"))["rows"]
-    assert sorted(row["reward"].split(",")[0] for row in rows) == ["drem", "sparse"]
+    assert sorted(row["reward"].split(",")[0] for row in rows) == ["dense", "sparse"]
