@@ -28,6 +28,12 @@ FACE_ENTRY_HEIGHT, FACE_SEED_HEIGHT = GEOMETRY.inserted_height, GEOMETRY.face_se
 
 
 @pytest.mark.slow
+def _unrendered(**settings) -> SamplerConfig:
+    """The tiny preset sampled without rendering its nodes: a tree's nodes, depths and poses are those of the same
+    tree rendered (tests/pipeline/test_poses.py), for a fraction of the machine time."""
+    return SamplerConfig.preset("tiny", images=False, **settings)
+
+
 def test_progress_tree_structure(pipeline):
     with h5py.File(pipeline["tree"], "r") as f:
         depth, parent = f["depth"][()], f["parent"][()]
@@ -96,7 +102,7 @@ def _finished_tree_to_grow(expert: str, out, config: SamplerConfig) -> int:
 def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path, monkeypatch):
     out = tmp_path / "tree.h5"
     with pytest.raises(NoStartRegionError, match="max_depth=3"):
-        backward_sample(pipeline["expert"], str(out), SamplerConfig.preset("tiny", max_depth=3), progress=False)
+        backward_sample(pipeline["expert"], str(out), _unrendered(max_depth=3), progress=False)
     partial = out.with_name(out.name + ".partial")
     with h5py.File(partial, "r") as f:
         assert f.attrs["completed_depth"] == 3
@@ -104,7 +110,7 @@ def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path, monkeypatch):
     # max_depth raised, completes. Depths 0-3 are the uninterrupted run's, node for node; later ones
     # may differ a little, since PhysX's contact cache (PCM) is not part of a saved state.
     calls = _count_depths(monkeypatch)
-    backward_sample(pipeline["expert"], str(out), SamplerConfig.preset("tiny", max_depth=3 + 37), progress=False)
+    backward_sample(pipeline["expert"], str(out), _unrendered(max_depth=3 + 37), progress=False)
     assert calls and min(calls) == 4
     assert not partial.exists()
     with h5py.File(out, "r") as a, h5py.File(pipeline["tree"], "r") as b:
@@ -120,7 +126,7 @@ def test_sampler_fails_clearly_then_resumes(pipeline, tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_outward_lineages_leave_the_start_region_along_their_directions_and_resume(pipeline, tmp_path, monkeypatch):
-    config = SamplerConfig.preset("tiny", phases=dict(outward=dict(depth=3, lineages=4, children=6)))
+    config = _unrendered(phases=dict(outward=dict(depth=3, lineages=4, children=6)))
     out = tmp_path / "tree.h5"
     calls = _interrupt_then_resume(  # interrupted in the outward phase's second depth, then resumed
         pipeline["expert"], out, config, monkeypatch,
@@ -324,7 +330,7 @@ def test_lineages_never_keep_a_child_caught_in_the_opening_and_do_not_keep_the_c
 @pytest.mark.slow
 def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(pipeline, tmp_path, monkeypatch):
     """Each face lineage moves out of the opening along its direction, one depth per step, and resumes."""
-    config = SamplerConfig.preset("tiny", phases=dict(face=dict(depth=3, lineages=4, children=6)))
+    config = _unrendered(phases=dict(face=dict(depth=3, lineages=4, children=6)))
     out = tmp_path / "tree.h5"
     calls = _interrupt_then_resume(  # interrupted in the face phase's second depth, then resumed
         pipeline["expert"], out, config, monkeypatch, lambda path, depth, chosen, kw: kw.get("group") == "face_2")
@@ -363,15 +369,15 @@ def test_face_lineages_slide_the_part_from_the_opening_over_the_face_and_resume(
 def test_side_lineages_go_on_from_the_face_lineages_and_a_finished_tree_gains_them(pipeline, tmp_path, monkeypatch):
     """The side phase continues each face lineage, labelled past it, along its steep direction; a complete tree without
     it gains it by a resume that samples the side depths alone, and an interrupted side phase resumes."""
-    face = SamplerConfig.preset("tiny", phases=dict(face=dict(depth=2, lineages=4, children=6)))
+    face = _unrendered(phases=dict(face=dict(depth=2, lineages=4, children=6)))
     out = tmp_path / "tree.h5"
     backward_sample(pipeline["expert"], str(out), face, progress=False)
     with pytest.raises(ValueError, match="face.depth"):
         backward_sample(pipeline["expert"], str(tmp_path / "x.h5"),
-                        SamplerConfig.preset("tiny", phases=dict(side=dict(depth=2))), progress=False)
+                        _unrendered(phases=dict(side=dict(depth=2))), progress=False)
     grown = tmp_path / "grown.h5"
     grown.with_name(grown.name + ".partial").write_bytes(out.read_bytes())
-    side = SamplerConfig.preset("tiny", phases=dict(face=dict(depth=2, lineages=4, children=6),
+    side = _unrendered(phases=dict(face=dict(depth=2, lineages=4, children=6),
                                                     side=dict(depth=3, children=6)))
     calls = _interrupt_then_resume(pipeline["expert"], grown, side, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == "side_2")
@@ -407,8 +413,8 @@ def test_push_children_leave_every_face_and_side_seed_with_full_range_actions_on
 
     base = dict(face=dict(depth=2, lineages=4, children=6), side=dict(depth=1, children=6))
     grown = tmp_path / "tree.h5"
-    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", phases=base))
-    config = SamplerConfig.preset("tiny", phases=dict(base, push=dict(children=5)))
+    n = _finished_tree_to_grow(pipeline["expert"], grown, _unrendered(phases=base))
+    config = _unrendered(phases=dict(base, push=dict(children=5)))
     assert push_groups(config) == ["face_1", "face_2", "side_1"]
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == "push_2")
@@ -443,11 +449,11 @@ def test_turn_lineages_turn_the_part_about_their_own_axes_near_the_opening_label
 
     base = dict(face=dict(depth=2, lineages=2, children=6))
     grown = tmp_path / "tree.h5"
-    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", phases=base))
+    n = _finished_tree_to_grow(pipeline["expert"], grown, _unrendered(phases=base))
     with pytest.raises(ValueError, match="face.depth"):
         backward_sample(pipeline["expert"], str(tmp_path / "x.h5"),
-                        SamplerConfig.preset("tiny", phases=dict(turn=dict(depth=2))), progress=False)
-    config = SamplerConfig.preset("tiny", phases=dict(base, turn=dict(depth=3, children=6)))
+                        _unrendered(phases=dict(turn=dict(depth=2))), progress=False)
+    config = _unrendered(phases=dict(base, turn=dict(depth=3, children=6)))
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == "turn_2")
     assert calls == ["turn_2", "turn_3"]  # nothing of the tree it grew from again
@@ -500,7 +506,7 @@ def _grow_near_goal_lineages(pipeline, tmp_path, monkeypatch, name: str, setting
         n = len(f["depth"])
     monkeypatch.setattr("drem_maniskill.envs.adapter.EnvAdapter.socket_geometry",
                         lambda self: (_ for _ in ()).throw(AssertionError("read the socket geometry")))
-    config = SamplerConfig.preset("tiny", phases={name: dict(depth=3, reach=0.5, every=4, **settings)})
+    config = _unrendered(phases={name: dict(depth=3, reach=0.5, every=4, **settings)})
     calls = _interrupt_then_resume(pipeline["expert"], grown, config, monkeypatch,
                                    lambda path, depth, chosen, kw: kw.get("group") == f"{name}_2")
     assert calls[0] == f"{name}_2" and set(calls) <= {f"{name}_2", f"{name}_3"}  # nothing of the tree it grew from
@@ -600,8 +606,8 @@ def test_goal_presses_push_the_inserted_part_down_from_the_goal_one_depth_from_i
     # barely reach the floor 5 mm below it, and the presses' sideways and twisting actions stay as small.
     base = dict(expert_step_scale=1.0, max_depth=80)
     grown = tmp_path / "tree.h5"
-    n = _finished_tree_to_grow(pipeline["expert"], grown, SamplerConfig.preset("tiny", **base))
-    config = SamplerConfig.preset("tiny", **base, phases=dict(goal_presses=dict(count=8)))
+    n = _finished_tree_to_grow(pipeline["expert"], grown, _unrendered(**base))
+    config = _unrendered(**base, phases=dict(goal_presses=dict(count=8)))
     calls = _count_depths(monkeypatch)
     backward_sample(pipeline["expert"], str(grown), config, progress=False)
     assert calls == ["goal_press"]
@@ -681,17 +687,17 @@ def test_seeds_from_the_demo_keep_a_pushed_cube_where_the_demo_had_it_and_the_pa
 
     cubes = {}
     for from_demo in (False, True):
-        config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, seeds_from_demo=from_demo)
+        config = _unrendered(num_children=4, max_depth=120, seeds_from_demo=from_demo)
         tree = backward_sample(rec.h5_path, str(tmp_path / f"tree_{from_demo}.h5"), config, progress=False)
         cubes[from_demo] = _cube_positions(tree, expert.env_kwargs)
 
     # Interrupted and resumed, a tree seeded from the demo is the same tree: the resumed seed is the demo's state
     # again, not the chosen child (whose hand is a random step, centimetres here, off the demo's). Within PhysX's
     # contact cache, which a saved state does not hold (under a millimetre).
-    config = SamplerConfig.preset("tiny", num_children=4, max_depth=5, seeds_from_demo=True)
+    config = _unrendered(num_children=4, max_depth=5, seeds_from_demo=True)
     with pytest.raises(NoStartRegionError):
         backward_sample(rec.h5_path, str(tmp_path / "resumed.h5"), config, progress=False)
-    config = SamplerConfig.preset("tiny", num_children=4, max_depth=120, seeds_from_demo=True)
+    config = _unrendered(num_children=4, max_depth=120, seeds_from_demo=True)
     resumed = backward_sample(rec.h5_path, str(tmp_path / "resumed.h5"), config, progress=False)
     with h5py.File(resumed, "r") as a, h5py.File(tmp_path / "tree_True.h5", "r") as b:
         assert a["tcp_pose"].shape == b["tcp_pose"].shape

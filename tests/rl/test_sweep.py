@@ -134,11 +134,11 @@ def test_trials_keep_to_their_cpu_share_while_reporting_their_start(tmp_path):
                 x = x / x.norm()
             return t0, time.time()
 
-        spans = ray.get([trial.remote(i) for i in range(5)])
+        spans = ray.get([trial.remote(i) for i in range(3)])  # two at a time: all three at once is a lent CPU
         reported = sorted(queue.get_nowait_batch(queue.qsize()))
     finally:
         ray.shutdown()
-    assert reported == list(range(5))
+    assert reported == list(range(3))
     most = max(sum(a <= t < b for a, b in spans) for t, _ in spans)
     assert most == 2, spans
 
