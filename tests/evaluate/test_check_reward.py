@@ -81,9 +81,9 @@ SMALL = ["--steps", "600", "--learning-starts", "500", "--eval-every", "600", "-
 @pytest.mark.slow
 def test_the_shipped_plug_charger_reward_is_reported_as_exploited(tmp_path, capsys):
     """Its policies are paid about 0.99 a step without the plug ever going in (docs/results.md)."""
-    # Paid like success from the first evaluation on: 60 steps, two evaluations, show it (each step renders two
+    # Paid like success from the first evaluation on: 20 steps, two evaluations, show it (each step renders two
     # cameras, and each evaluation is a 200-step episode).
-    steps = ["--steps", "60", "--learning-starts", "50", "--eval-every", "60", "--eval-episodes", "1"]
+    steps = ["--steps", "20", "--learning-starts", "10", "--eval-every", "20", "--eval-episodes", "1"]
     assert main(["check-reward", "--task", "PlugCharger-v1", "--episodes", "1", "--out", str(tmp_path), *steps]) == 0
     out = capsys.readouterr().out
     report = json.loads((tmp_path / "report.json").read_text())

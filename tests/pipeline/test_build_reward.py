@@ -183,12 +183,16 @@ def test_publish_copies_the_products_into_the_shipped_folder_saying_what_it_repl
 
 
 @pytest.mark.slow
-def test_a_forest_samples_a_tree_per_demo_episode_and_trains_on_all_of_them(tmp_path):
+def test_a_forest_samples_a_tree_per_demo_episode_and_trains_on_all_of_them_and_their_scene_swap_negatives(tmp_path):
+    import h5py
+
     from drem_maniskill.drem.model import ModelConfig
     from drem_maniskill.pipeline.dataset import TreeDataset
     from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, merge
 
     recipe = merge(GENERAL_DEFAULTS, {"demo": {"seed": 1000, "episodes": 2, "trees": 2},
+                                      "scene_swap": {"negatives": True, "lag": 4, "max_pairs": 30},
+                                      "train": {"model": {"modalities": ["fixed", "poses"]}},
                                       "calibrate": {"enabled": False},
                                       "scales": {"tiny": {"sampler": {"max_depth": 120}}}})
     path = build_reward("PushCube-v1", scale="tiny", out=tmp_path, recipe=recipe)
@@ -204,26 +208,7 @@ def test_a_forest_samples_a_tree_per_demo_episode_and_trains_on_all_of_them(tmp_
     assert forest.goal_index == 0 and int(forest.depth[start + second.goal_index]) == 0
     assert torch.equal(forest.images["fixed"][start:], second.images["fixed"])
 
-
-def test_a_forest_needs_as_many_demo_episodes_as_trees():
-    with pytest.raises(RecipeError, match=r"trees = 3 needs 1 <= trees <= episodes \(= 2\)"):
-        load_recipe("PushCube-v1", recipe={"demo": {"episodes": 2, "trees": 3}})
-
-
-
-@pytest.mark.slow
-def test_scene_swap_negatives_are_written_per_tree_and_trained_on(tmp_path):
-    import h5py
-
-    from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, merge
-
-    recipe = merge(GENERAL_DEFAULTS, {"demo": {"seed": 1000, "episodes": 2, "trees": 2},
-                                      "scene_swap": {"negatives": True, "lag": 4, "max_pairs": 30},
-                                      "train": {"model": {"modalities": ["fixed", "poses"]}},
-                                      "calibrate": {"enabled": False},
-                                      "scales": {"tiny": {"sampler": {"max_depth": 120}}}})
-    path = build_reward("PushCube-v1", scale="tiny", out=tmp_path, recipe=recipe)
-    header, _ = load_checkpoint(str(path))
+    # Scene-swap negatives: written per tree, their pairs more than the lag apart, counted in the header.
     counts = []
     for k in range(2):
         with h5py.File(tmp_path / "scene_swap" / f"negatives_{k}.h5") as f:
@@ -232,6 +217,12 @@ def test_scene_swap_negatives_are_written_per_tree_and_trained_on(tmp_path):
             counts.append(len(depth))
     assert header["negatives"] == dict(files=["negatives_0.h5", "negatives_1.h5"], nodes=sum(counts))
     assert header["modalities"] == ["fixed", "poses"] and header["model"]["poses_size"] > 0
+
+
+def test_a_forest_needs_as_many_demo_episodes_as_trees():
+    with pytest.raises(RecipeError, match=r"trees = 3 needs 1 <= trees <= episodes \(= 2\)"):
+        load_recipe("PushCube-v1", recipe={"demo": {"episodes": 2, "trees": 3}})
+
 
 
 def test_a_second_build_in_a_busy_work_folder_fails_naming_the_first(tmp_path):
