@@ -53,13 +53,14 @@ def sac_configs(tasks, out: Path, seeds, baseline_seeds, steps: int) -> list:
 def table(steps: int) -> str:
     """The general recipe's table (markdown) from ``docs/results/general``: each task's examination and its SAC."""
     lines = ["| task | build | value order | AUROC | expert end, held-out | floor beside / inserted | "
-             f"DREM: state SAC at {steps:,} steps, per seed | sparse | engineered |", "| --- " * 9 + "|"]
+             "at the opening, 4 mm off / on the axis | "
+             f"DREM: state SAC at {steps:,} steps, per seed | sparse | engineered |", "| --- " * 10 + "|"]
     for exam in sorted(RESULTS.glob("*/examination.json")):
         r, folder = json.loads(exam.read_text()), exam.parent
-        floor = r.get("floor_beside_over_inserted")
+        ratios = [r.get(k) for k in ("floor_beside_over_inserted", "mouth_off_axis_over_on_axis")]
         lines.append(f"| {r['task']} | {r['build_seconds'] / 3600:.1f} h | {r['value_order_spearman']:.3f} | "
                      f"{r['final_reward_auroc']:.3f} | {r['expert_end_heldout']:.2f} | "
-                     f"{'n/a' if floor is None else f'{floor:.2f}'} | "
+                     + "".join("n/a | " if x is None else f"{x:.2f} | " for x in ratios)
                      + " | ".join(sac_cell(folder / reward, steps) for reward in ("drem",) + BASELINES) + " |")
     return "\n".join(lines)
 

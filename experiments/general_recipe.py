@@ -258,7 +258,7 @@ def timed_build(task: str, work: Path, recipe, keep: Path = None) -> tuple:
 
 
 EXAM_MEASURES = ("value_order_spearman", "final_reward_auroc", "random_mean_reward", "success_rate",
-                 "floor_beside_over_inserted")
+                 "floor_beside_over_inserted", "mouth_off_axis_over_on_axis")
 
 
 def examination_measures(quality: dict) -> dict:

@@ -121,12 +121,13 @@ def test_quality_holds_every_measure_in_the_files_order():
         "robot_only_over_expert", "objects_only_over_expert", "search_fail_contact_loss", "contact_plateau",
         "search_fail_first_contact_loss", "colour_spread", "held_positions", "inserted_reward_std",
         "floor_beside_over_inserted", "side_over_inserted", "side_pushed_over_inserted", "face_pushed_over_inserted",
-        "face_over_hover", "turned_over_upright", "turned_over_inserted", "success_rate",
+        "face_over_hover", "turned_over_upright", "turned_over_inserted", "mouth_off_axis_over_on_axis", "success_rate",
         "spearman_with_normalized_dense", "spearman_with_insertion_depth", "spearman_with_normalized_dense_expert",
         "dense_curves", "curves", "expert_curves"]
     assert q["value_order_spearman"] == pytest.approx(1.0) and q["expert_success_rate"] == 0.5
     assert q["final_reward_auroc"] == 1.0 and q["random_mean_reward"] == pytest.approx(0.05)
     assert q["robot_only_over_expert"] == 0.5 and q["face_over_hover"] == pytest.approx(1.0)
+    assert q["mouth_off_axis_over_on_axis"] == pytest.approx(1.0)
     assert q["floor_beside_over_inserted"] is None  # not held here
     # Over the fixed places above the face only: the two below it ("pressed 3 mm beside", "25 mm down") do not count.
     assert q["colour_spread"]["max_std"] == pytest.approx(0.06)
