@@ -224,7 +224,6 @@ def test_a_forest_needs_as_many_demo_episodes_as_trees():
         load_recipe("PushCube-v1", recipe={"demo": {"episodes": 2, "trees": 3}})
 
 
-
 def test_a_second_build_in_a_busy_work_folder_fails_naming_the_first(tmp_path):
     import subprocess
     import sys

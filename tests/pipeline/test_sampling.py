@@ -27,13 +27,13 @@ in_opening = GEOMETRY.in_opening
 FACE_ENTRY_HEIGHT, FACE_SEED_HEIGHT = GEOMETRY.inserted_height, GEOMETRY.face_seed_height
 
 
-@pytest.mark.slow
 def _unrendered(**settings) -> SamplerConfig:
     """The tiny preset sampled without rendering its nodes: a tree's nodes, depths and poses are those of the same
     tree rendered (tests/pipeline/test_poses.py), for a fraction of the machine time."""
     return SamplerConfig.preset("tiny", images=False, **settings)
 
 
+@pytest.mark.slow
 def test_progress_tree_structure(pipeline):
     with h5py.File(pipeline["tree"], "r") as f:
         depth, parent = f["depth"][()], f["parent"][()]
