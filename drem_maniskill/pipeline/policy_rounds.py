@@ -12,6 +12,13 @@ anyone naming the states:
    (``2 eps + 1`` by default: beyond the goal's neighbours and theirs), and the model is fine-tuned from the
    current weights for ``iterations`` on the tree and every round's negatives.
 
+A policy also fails where the reward stops rising short of the goal: a plateau no trap rule sees, since it pays
+less than the goal. With ``stall_window > 0`` a round looks for it too: a failed episode whose reward rose by less
+than ``stall_rise`` over its last ``stall_window`` of steps stalled there, and those steps join the tree one
+neighbourhood (``eps + 1``) farther from the goal than the nearest depth whose nodes the reward pays no more than it
+pays the step. The reward thereby learns that where the policy waits is not as far along as the tree's states it
+resembles, whatever the task.
+
 Every round lives in ``<out>/round_<k>/`` (``sac/``, ``negatives.h5``: a ``pipeline.negatives`` file,
 ``train/drem.pt``) and a finished stage is never redone: a killed round, rerun, goes on from its last finished
 stage (the SAC run and the training from their own checkpoints). The checkpoint's header lists the rounds
@@ -55,6 +62,10 @@ class RoundsConfig:
     """Fine-tuning iterations per round, from the previous round's weights."""
     seed: int = 0
     """Seed of round 1's SAC run and episodes (round k: seed + k - 1)."""
+    stall_window: float = 0.0
+    """The share of a failed episode's last steps searched for a stall; 0: stalls are not looked for."""
+    stall_rise: float = 0.02
+    """A failed episode stalled when its best reward in the window exceeds its best before it by less than this."""
 
     def depth(self, eps: float) -> int:
         """The hard negatives' depth label for the triplet loss's ``eps``."""
@@ -86,8 +97,43 @@ def paid_at_depth(checkpoint, tree: str, depth: int, image_size: Optional[int] =
     return float(reward(batch).mean())
 
 
-def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k: int, depth: int) -> dict:
-    """Run round ``k``'s policy (sampled actions) and keep the failed episodes' states paid ``>= threshold``."""
+@torch.no_grad()
+def paid_by_depth(checkpoint, tree: str, per_depth: int = 64) -> tuple:
+    """What the reward pays the tree's nodes, by depth: ``(depths, mean R)``, depths ascending (the goal first)."""
+    from drem_maniskill.drem.reward import DREMReward
+    from drem_maniskill.pipeline.dataset import TreeDataset
+
+    reward = DREMReward.from_checkpoint(str(checkpoint))
+    data = TreeDataset(tree, reward.model.config)
+    depths = np.array(sorted(data.by_depth))
+    paid = []
+    for d in depths:
+        batch = data.batch(data.by_depth[int(d)][:per_depth])
+        if not reward.uses_ft:
+            batch.pop("ft")
+        paid.append(float(reward(batch).mean()))
+    return depths, np.array(paid)
+
+
+def stall_depth(paid: float, depths: np.ndarray, paid_curve: np.ndarray, eps: float) -> int:
+    """The label of a stalled state paid ``paid``: ``eps + 1`` beyond the nearest depth paid no more than it."""
+    below = depths[paid_curve <= paid]
+    return int((below.min() if len(below) else depths.max()) + int(eps) + 1)
+
+
+def stalled_steps(paid: Sequence[float], window: float, rise: float) -> range:
+    """The steps where an episode paid ``paid`` stalled: its last ``window`` share, or none where it still rose."""
+    n = max(1, int(round(window * len(paid))))
+    if n >= len(paid):
+        return range(0)
+    before, last = max(paid[:-n]), max(paid[-n:])
+    return range(len(paid) - n, len(paid)) if last - before < rise else range(0)
+
+
+def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k: int, depth: int,
+                      stall_label=None) -> dict:
+    """Run round ``k``'s policy (sampled actions) and keep the failed episodes' states paid ``>= threshold`` (labelled
+    ``depth``) and, with ``stall_label`` (R -> depth), the steps where they stalled below it (labelled by it)."""
     from drem_maniskill.drem.reward import DREMReward
     from drem_maniskill.experts import rollout
     from drem_maniskill.rl.run_env import make_eval_env
@@ -96,7 +142,7 @@ def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k
     env = make_eval_env(dataclasses.replace(run, drem_form="paper"))
     reward = DREMReward.from_checkpoint(str(checkpoint), env)
     act = load_policy(run.run_dir).act(deterministic=False, seed=config.seed + k - 1)
-    kept, stats = [], dict(episodes=0, failed=0, candidates=0)
+    kept, stats = [], dict(episodes=0, failed=0, candidates=0, stalled=0, stall_candidates=0)
     try:
         for i in progress_bar(range(config.episodes), desc=f"round {k}: policy episodes"):
             steps = []
@@ -112,15 +158,22 @@ def collect_negatives(run, checkpoint, threshold: float, config: RoundsConfig, k
             if ep.success:
                 continue
             stats["failed"] += 1
-            kept += [(inputs, r, seed, t) for t, (inputs, r) in enumerate(steps) if r >= threshold]
+            traps = [(inputs, r, seed, t, depth) for t, (inputs, r) in enumerate(steps) if r >= threshold]
+            stats["candidates"] += len(traps)
+            kept += traps
+            if stall_label is not None:
+                stalled = [t for t in stalled_steps([r for _, r in steps], config.stall_window, config.stall_rise)
+                           if steps[t][1] < threshold]
+                stats["stalled"] += bool(stalled)
+                stats["stall_candidates"] += len(stalled)
+                kept += [(steps[t][0], steps[t][1], seed, t, stall_label(steps[t][1])) for t in stalled]
     finally:
         env.close()
-    stats["candidates"] = len(kept)
     if len(kept) > config.max_negatives:
         kept = [kept[i] for i in np.linspace(0, len(kept) - 1, config.max_negatives).round().astype(int)]
     stats["negatives"] = len(kept)
-    stats["reward_before"] = float(np.mean([r for _, r, _, _ in kept])) if kept else None
-    return dict(stats=stats, rows=kept)
+    stats["reward_before"] = float(np.mean([row[1] for row in kept])) if kept else None
+    return dict(stats=stats, rows=[row[:4] for row in kept], depths=[row[4] for row in kept])
 
 
 def run_round(task: str, tree: str, checkpoint: Path, train_config, config: RoundsConfig, k: int, out: Path,
@@ -138,8 +191,12 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
     if not record_path.exists():
         result = train_policy(run)
         threshold = paid_at_depth(checkpoint, tree, depth)
-        found = collect_negatives(run, checkpoint, threshold, config, k, depth)
-        write_negatives(round_dir / "negatives.h5", found["rows"], depth, train_config.model.cameras,
+        stall_label = None
+        if config.stall_window > 0:
+            curve = paid_by_depth(checkpoint, tree)
+            stall_label = lambda paid: stall_depth(paid, *curve, train_config.eps)  # noqa: E731
+        found = collect_negatives(run, checkpoint, threshold, config, k, depth, stall_label)
+        write_negatives(round_dir / "negatives.h5", found["rows"], found["depths"], train_config.model.cameras,
                         "ft" in train_config.model.modalities)
         last = result["last_eval"] or {}
         record = dict(round=k, sac_steps=run.steps, sac_success=last.get("success_rate"), negative_depth=depth,

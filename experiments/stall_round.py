@@ -1,0 +1,103 @@
+"""A stall round on a finished general-recipe reward, then state SAC on the reward it leaves.
+
+Round 1 of ``build-reward``'s policy rounds with stall states (``stall_window``) on a general-recipe build of
+``experiments/general.py`` (``<out>/build/<task>``), its policy being one of that build's 50,000-step state SAC runs
+(``<out>/<task>/drem/seed<S>``, ``--policy-seed``): the run a round with ``sac_steps = 50,000`` trains, so it is not
+trained again. The round collects the run's failed episodes' traps and stalls, fine-tunes, examines and calibrates in
+``<out>/stall/<task>`` (``build_reward`` with the general recipe plus ``STALL_ROUND``: its demo, tree and first
+training are the build's, linked). State SAC on the new reward (``--seeds``) trains through the sweep into
+``<out>/stall/<task>/sac/seed<S>``. The round's record and examination measures, and each run's small files, go to
+``docs/results/general/<task>/stall_round/``. Rerunning the command resumes every stage.
+
+    .venv/bin/python experiments/stall_round.py --task SquarePegInHole-v1 --policy-seed 0 --seeds 0 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import shutil
+from pathlib import Path
+
+from general_recipe import copy_run_files, drem_sac_configs, examination_measures  # experiments/ is the folder
+
+RESULTS = Path("docs/results/general")
+STALL_ROUND = {"rounds": {"rounds": 1, "sac_steps": 50_000, "episodes": 20, "iterations": 1_000,
+                          "stall_window": 0.25}}
+# What the round's SAC config may differ in from the build's run: where it lives, what pays it (the same file,
+# sha256-checked on resume) and how it is evaluated.
+ROUND_ONLY = {"out", "reward_checkpoint", "eval_every", "eval_episodes", "steps"}
+
+
+def link_build(build: Path, work: Path) -> None:
+    """The build's demo, tree and first training in ``work`` as hard links (their stages are then skipped)."""
+    for name in ("expert", "tree.h5", "reward"):
+        src, dest = build / name, work / name
+        if dest.exists():
+            continue
+        if src.is_dir():
+            shutil.copytree(src, dest, copy_function=os.link)
+        else:
+            os.link(src, dest)
+
+
+def place_policy(task: str, work: Path, run: Path, rounds) -> None:
+    """The finished SAC run ``run`` as round 1's policy (``rounds/round_1/sac``), its config the round's."""
+    from drem_maniskill.pipeline.policy_rounds import round_policy_config
+    from drem_maniskill.rl.config import RLConfig
+
+    round_dir = work / "rounds" / "round_1"
+    dest = round_dir / "sac"
+    if dest.exists():
+        return
+    config = round_policy_config(task, work / "reward" / "drem.pt", rounds, 1, round_dir)
+    saved = RLConfig.load(run / "config.json")
+    differ = {f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(saved, f.name)}
+    if differ - ROUND_ONLY:
+        raise ValueError(f"{run} is not the SAC run round 1 trains: it differs in {sorted(differ - ROUND_ONLY)}")
+    shutil.copytree(run, dest, ignore=shutil.ignore_patterns(".lock"))
+    config.save(dest / "config.json")
+
+
+def main() -> None:
+    """Run the stall round on the build's reward, then SAC on its checkpoint through the sweep."""
+    from drem_maniskill.drem.checkpoint import load_checkpoint
+    from drem_maniskill.pipeline.build_reward import build_reward
+    from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, load_recipe, merge
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", required=True)
+    p.add_argument("--policy-seed", type=int, default=0, help="the build's SAC run used as round 1's policy")
+    p.add_argument("--seeds", nargs="*", type=int, default=[0, 1], help="state SAC seeds on the new reward")
+    p.add_argument("--steps", type=int, default=50_000)
+    p.add_argument("--out", default="outputs/general")
+    args = p.parse_args()
+    out, task = Path(args.out), args.task
+    work = out / "stall" / task
+    recipe = merge(GENERAL_DEFAULTS, STALL_ROUND)
+    work.mkdir(parents=True, exist_ok=True)
+    link_build(out / "build" / task, work)
+    place_policy(task, work, out / task / "drem" / f"seed{args.policy_seed}",
+                 load_recipe(task, "full", recipe).rounds_config())
+    checkpoint = build_reward(task, scale="full", out=work, recipe=recipe)
+    header, _ = load_checkpoint(str(checkpoint))
+    quality = json.loads((work / "quality.json").read_text())
+    dest = RESULTS / task / "stall_round"
+    dest.mkdir(parents=True, exist_ok=True)
+    summary = dict(task=task, policy=f"drem/seed{args.policy_seed}", recipe_rounds=STALL_ROUND["rounds"],
+                   round=header["rounds"][-1], **examination_measures(quality))
+    (dest / "examination.json").write_text(json.dumps(summary, indent=1) + "\n")
+    print(json.dumps(summary["round"]), flush=True)
+    configs = drem_sac_configs([(task, checkpoint, work / "sac")], args.seeds, args.steps)
+    if configs:
+        from drem_maniskill.rl.sweep import run_sweep
+
+        run_sweep(configs, out)
+        for c in configs:
+            copy_run_files(Path(c.out), dest / "drem" / Path(c.out).name)
+
+
+if __name__ == "__main__":
+    main()
