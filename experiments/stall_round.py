@@ -27,8 +27,8 @@ RESULTS = Path("docs/results/general")
 STALL_ROUND = {"rounds": {"rounds": 1, "sac_steps": 50_000, "episodes": 20, "iterations": 1_000,
                           "stall_window": 0.25}}
 # What the round's SAC config may differ in from the build's run: where it lives, what pays it (the same file,
-# sha256-checked on resume) and how it is evaluated.
-ROUND_ONLY = {"out", "reward_checkpoint", "eval_every", "eval_episodes", "steps"}
+# sha256-checked on resume), how it is evaluated and whether its env steps in a child process.
+ROUND_ONLY = {"out", "reward_checkpoint", "eval_every", "eval_episodes", "steps", "overlap_env"}
 
 
 def link_build(build: Path, work: Path) -> None:
