@@ -13,20 +13,25 @@ import time
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 import torch
 
 from drem_maniskill.drem.checkpoint import load_checkpoint
-from drem_maniskill.pipeline.policy_rounds import RoundsConfig, run_rounds
+from drem_maniskill.pipeline.policy_rounds import (RoundsConfig, paid_by_depth, run_rounds, stall_depth,
+                                                   stalled_steps)
 from drem_maniskill.pipeline.recipe import RecipeError, load_recipe
 
 # One round: 300 SAC steps (gradient steps after 200), two policy episodes, 60 fine-tuning iterations.
 # Labelled deep (30 of the tiny tree's ~60 depths) so that a barely trained reward still over-pays some states.
 ROUNDS = RoundsConfig(rounds=1, sac_steps=300, learning_starts=200, episodes=2, iterations=60, negative_depth=30)
+# The same round looking for stalls too: the last quarter of a failed episode, where its reward stopped rising.
+STALLS = dataclasses.replace(ROUNDS, stall_window=0.25)
 
 SCRIPT = """
 import json, sys
-from drem_maniskill.pipeline.policy_rounds import RoundsConfig, run_rounds
+from drem_maniskill.pipeline.policy_rounds import (RoundsConfig, paid_by_depth, run_rounds, stall_depth,
+                                                   stalled_steps)
 from drem_maniskill.pipeline.train_reward import TrainConfig
 a = json.loads(sys.argv[1])
 config = TrainConfig(**{**a["train"], "model": __import__("drem_maniskill.drem.model", fromlist=["ModelConfig"])
@@ -61,25 +66,47 @@ def _rewards(checkpoint, negatives: Path) -> torch.Tensor:
 
 
 @pytest.mark.slow
-def test_a_round_adds_the_over_paid_states_of_failed_episodes_and_pays_them_less(tiny, tmp_path):
+def test_a_round_adds_the_over_paid_and_stalled_states_of_failed_episodes_and_pays_them_less(tiny, tmp_path):
     tree, config, checkpoint = tiny
-    last = run_rounds("PegInHole-v1", tree, checkpoint, config, ROUNDS, tmp_path)
+    last = run_rounds("PegInHole-v1", tree, checkpoint, config, STALLS, tmp_path)
     header, _ = load_checkpoint(str(last))
     (record,) = header["rounds"]
     assert record["round"] == 1 and record["negative_depth"] == 30 and record["sac_steps"] == 300
     assert record["episodes"] == 2 and record["failed"] == 2  # 300 steps teach no insertion
     negatives = tmp_path / "round_1" / "negatives.h5"
     with h5py.File(negatives, "r") as f:
-        assert len(f["depth"]) == record["negatives"] > 0 and set(f["depth"][()]) == {30}
+        depth, paid, step = f["depth"][()], f["reward"][()], f["step"][()]
+        assert len(depth) == record["negatives"] > 0
         assert f["fixed_rgb"].shape[1:] == (128, 128, 3) and f["ft"].shape[1:] == (8, 6)
-    # Kept because the reward paid them at least what it pays the tree's nodes at depth 30.
+    # Traps: paid at least what the reward pays the tree's nodes at depth 30, labelled 30.
+    trap = paid >= record["threshold"] - 1e-4
+    assert trap.sum() == record["candidates"] > 0 and set(depth[trap]) == {30}
+    # Stalls: paid less, from an episode's last quarter, labelled eps + 1 beyond the depth paid no more than them.
+    stall = ~trap
+    assert stall.sum() == record["stall_candidates"] > 0 and 1 <= record["stalled"] <= 2
+    curve = paid_by_depth(checkpoint, tree)
+    assert list(depth[stall]) == [stall_depth(float(r), *curve, config.eps) for r in paid[stall]]
+    assert all(depth[stall] > curve[0][curve[1] <= paid[stall].max()].min())
+    horizon = max(step) + 1
+    assert all(step[stall] >= horizon - round(0.25 * horizon))
     before = _rewards(checkpoint, negatives)
-    assert float(before.min()) >= record["threshold"] - 1e-4
+    assert before.numpy() == pytest.approx(paid, abs=1e-4)
     assert record["reward_before"] == pytest.approx(float(before.mean()), abs=1e-4)
     after = _rewards(last, negatives)
     assert record["reward_after"] == pytest.approx(float(after.mean()), abs=1e-4)
     assert float(after.mean()) < float(before.mean())  # labelled farther from the goal, they are paid less
     assert header["train"]["iterations"] == 60 and header["fit"]["tree_order"] > 0
+
+
+def test_an_episode_stalled_where_its_reward_stopped_rising_and_is_labelled_beyond_what_it_is_paid_like():
+    assert list(stalled_steps([0.1, 0.3, 0.5, 0.6, 0.6, 0.61, 0.6, 0.6], 0.25, 0.02)) == [6, 7]
+    assert list(stalled_steps([0.1, 0.3, 0.5, 0.6, 0.6, 0.61, 0.7, 0.8], 0.25, 0.02)) == []  # still rising
+    assert list(stalled_steps([0.5, 0.5], 0.5, 0.02)) == [1] and list(stalled_steps([0.5], 0.5, 0.02)) == []
+    depths, paid = np.arange(10), 1 - np.arange(10) / 10  # depth d paid 1 - d / 10
+    assert stall_depth(0.63, depths, paid, 4.0) == 4 + 5  # depth 4 is the nearest paid no more than 0.63
+    assert stall_depth(0.6, depths, paid, 4.0) == 4 + 5
+    assert stall_depth(1.5, depths, paid, 4.0) == 0 + 5  # paid above the goal: beyond the goal's neighbours
+    assert stall_depth(-1.0, depths, paid, 4.0) == 9 + 5  # paid below every depth: beyond the deepest
 
 
 @pytest.mark.slow
