@@ -28,6 +28,7 @@ stage (the SAC run and the training from their own checkpoints). The checkpoint'
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -193,8 +194,8 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
         threshold = paid_at_depth(checkpoint, tree, depth)
         stall_label = None
         if config.stall_window > 0:
-            curve = paid_by_depth(checkpoint, tree)
-            stall_label = lambda paid: stall_depth(paid, *curve, train_config.eps)  # noqa: E731
+            depths, paid = paid_by_depth(checkpoint, tree)
+            stall_label = functools.partial(stall_depth, depths=depths, paid_curve=paid, eps=train_config.eps)
         found = collect_negatives(run, checkpoint, threshold, config, k, depth, stall_label)
         write_negatives(round_dir / "negatives.h5", found["rows"], found["depths"], train_config.model.cameras,
                         "ft" in train_config.model.modalities)
