@@ -1,14 +1,17 @@
-"""How the sampler's action range shapes the reward at a socket's mouth: the general recipe against a narrower range.
+"""Whether the sampler's action range makes the reward flat across a socket's mouth: the general recipe's range
+against one expert step.
 
 Backward sampling labels every child of a seed with the seed's depth plus one, however far its random action moved
 it. Where the part moves freely (above the opening) the children of the general recipe's range (four times the
-expert's step, at least ``min_action_scale``) spread several millimetres around the demo's path, all at one depth:
-the tree itself teaches that a part off the axis at the opening is as far along as one on it. This pilot builds the
+expert's step, at least ``min_action_scale``) spread several millimetres around the demo's path, all at one depth, so
+the tree may itself teach that a part off the axis at the opening is as far along as one on it. This pilot builds the
 reward of ``task`` twice at a smaller scale of training (``ITERATIONS``), under the general recipe (its tree taken
 from the full build of ``experiments/general.py``, ``<out>/build/<task>``) and with the range of one expert step
 (``NARROW``), and reports for each the tree's spread at the opening (``tip_in_socket``, a measure the sampler never
-reads) and the examination's measures, ``mouth_off_axis_over_on_axis`` among them, to
-``docs/results/general/<task>/action_range_pilot.json``. Rerunning resumes both builds.
+reads) and the examination's measures, ``mouth_off_axis_over_on_axis`` among them; beside them, how well each camera's
+image tells the offset at all (``offset_readout``). Written to ``docs/results/general/<task>/action_range_pilot.json``.
+``--full`` adds the narrow range at the recipe's own 20,000 iterations, on the narrow pilot's tree. Rerunning resumes
+every build.
 
     .venv/bin/python experiments/action_range_pilot.py --task SquarePegInHole-v1
 """
@@ -28,7 +31,9 @@ RESULTS = Path("docs/results/general")
 ITERATIONS = {"train": {"iterations": 5_000}}
 # One expert step (not four), and a floor of 1 % of the controller's translation limit (not 5 %).
 NARROW = {"sampler": {"expert_step_scale": 1.0, "min_action_scale": 0.01}}
-PILOTS = {"general": (ITERATIONS,), "narrow": (NARROW, ITERATIONS)}
+# Name -> (the recipe's changes, the build whose demo and tree it takes: None samples its own).
+PILOTS = {"general": ((ITERATIONS,), "build/{task}"), "narrow": ((NARROW, ITERATIONS), None)}
+FULL = {"narrow_20k": ((NARROW,), "action_range_pilot/{task}/narrow")}
 
 
 def spread_above_opening(tree: Path) -> list:
@@ -47,6 +52,42 @@ def spread_above_opening(tree: Path) -> list:
     return rows
 
 
+def offset_readout(tree: Path, sizes=(32, 64, 128), ridge: float = 1.0) -> dict:
+    """How well each camera's image at each size tells where the part is across the opening: a ridge regression from
+    the pixels to the tip's offset from the axis, fitted on 800 nodes 0-20 mm above the opening and tested on the rest;
+    per camera and size, the median error (mm), beside guessing the mean offset."""
+    import torch
+    import torch.nn.functional as F
+
+    with h5py.File(tree, "r") as f:
+        depth, tip = f["depth"][()], f["tip_in_socket"][()] * 1000
+        heights = np.array(_median_heights(f, depth))
+        above = np.unique(depth)[(heights >= 0) & (heights <= 20)]
+        idx = np.nonzero(np.isin(depth, above) & (np.hypot(tip[:, 0], tip[:, 1]) < 20))[0]  # not the outward lineages
+        offset = tip[idx, :2]
+        images = {c: torch.as_tensor(f[f"{c}_rgb"][idx]).permute(0, 3, 1, 2).float() / 255 for c in ("fixed", "wrist")}
+    order = np.random.default_rng(0).permutation(len(idx))
+    fit, test = order[:800], order[800:]
+    miss = offset[test] - offset[fit].mean(0)
+    out = dict(nodes=len(idx), guess_mean_mm=round(float(np.median(np.hypot(miss[:, 0], miss[:, 1]))), 2))
+    for camera, x in images.items():
+        for size in sizes:
+            flat = F.interpolate(x, size=(size, size), mode="area").flatten(1).numpy()
+            flat = flat - flat[fit].mean(0)
+            kernel = flat[fit] @ flat[fit].T
+            weights = np.linalg.solve(kernel + ridge * np.eye(len(fit)), offset[fit] - offset[fit].mean(0))
+            guess = flat[test] @ flat[fit].T @ weights + offset[fit].mean(0)
+            miss = guess - offset[test]
+            out[f"{camera}_{size}px_mm"] = round(float(np.median(np.hypot(miss[:, 0], miss[:, 1]))), 2)
+    return out
+
+
+def _median_heights(f, depth: np.ndarray) -> list:
+    """Each depth's median tip height above the opening (mm), depths ascending."""
+    tip = f["tip_in_socket"][()][:, 2] * 1000
+    return [float(np.median(tip[depth == d])) for d in np.unique(depth)]
+
+
 def main() -> None:
     """Build both pilots (resuming) and write their measures."""
     from drem_maniskill.pipeline.build_reward import build_reward
@@ -55,26 +96,27 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", required=True)
     p.add_argument("--out", default="outputs/general")
+    p.add_argument("--full", action="store_true", help="also the narrow range at 20,000 iterations")
     args = p.parse_args()
     out, task = Path(args.out), args.task
     summary = {}
-    for name, parts in PILOTS.items():
+    for name, (parts, tree_from) in {**PILOTS, **(FULL if args.full else {})}.items():
         recipe = GENERAL_DEFAULTS
         for part in parts:
             recipe = merge(recipe, part)
         work = out / "action_range_pilot" / task / name
         work.mkdir(parents=True, exist_ok=True)
-        if name == "general":  # the full build's demo and tree: only the training differs
-            for entry in ("expert", "tree.h5"):
-                if not (work / entry).exists():
-                    src = out / "build" / task / entry
-                    os.symlink(src.resolve(), work / entry, target_is_directory=src.is_dir())
+        for entry in ("expert", "tree.h5") if tree_from else ():  # the same demo and tree: only the training differs
+            if not (work / entry).exists():
+                src = out / tree_from.format(task=task) / entry
+                os.symlink(src.resolve(), work / entry, target_is_directory=src.is_dir())
         build_reward(task, scale="full", out=work, recipe=recipe)
         quality = json.loads((work / "quality.json").read_text())
-        summary[name] = dict(recipe_changes=parts, spread_above_opening=spread_above_opening(work / "tree.h5"),
-                             **examination_measures(quality))
+        summary[name] = dict(recipe_changes=parts, tree_from=tree_from, **examination_measures(quality),
+                             spread_above_opening=spread_above_opening(work / "tree.h5"))
         print(name, json.dumps({k: summary[name][k] for k in ("value_order_spearman", "mouth_off_axis_over_on_axis")}),
               flush=True)
+    summary["offset_readout"] = offset_readout(out / "build" / task / "tree.h5")
     dest = RESULTS / task / "action_range_pilot.json"
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(summary, indent=1) + "\n")

@@ -1,15 +1,17 @@
-"""A stall round on a finished general-recipe reward, then state SAC on the reward it leaves.
+"""Stall rounds on a finished general-recipe reward, each followed by state SAC on the reward it leaves.
 
 Round 1 of ``build-reward``'s policy rounds with stall states (``stall_window``) on a general-recipe build of
 ``experiments/general.py`` (``<out>/build/<task>``), its policy being one of that build's 50,000-step state SAC runs
 (``<out>/<task>/drem/seed<S>``, ``--policy-seed``): the run a round with ``sac_steps = 50,000`` trains, so it is not
 trained again. The round collects the run's failed episodes' traps and stalls, fine-tunes, examines and calibrates in
-``<out>/stall/<task>`` (``build_reward`` with the general recipe plus ``STALL_ROUND``: its demo, tree and first
+``<out>/stall/<task>`` (``build_reward`` with the general recipe plus ``stall_rounds(1)``: its demo, tree and first
 training are the build's, linked). State SAC on the new reward (``--seeds``) trains through the sweep into
-``<out>/stall/<task>/sac/seed<S>``. The round's record and examination measures, and each run's small files, go to
-``docs/results/general/<task>/stall_round/``. Rerunning the command resumes every stage.
+``<out>/stall/<task>/sac/seed<S>``. ``--round K`` goes on from round ``K - 1``'s folder the same way, its policy that
+round's SAC run, into ``<out>/stall<K>/<task>``. The round's record and examination measures, and each run's small
+files, go to ``docs/results/general/<task>/stall_round[_<K>]/``. Rerunning the command resumes every stage.
 
     .venv/bin/python experiments/stall_round.py --task SquarePegInHole-v1 --policy-seed 0 --seeds 0 1
+    .venv/bin/python experiments/stall_round.py --task SquarePegInHole-v1 --round 2 --policy-seed 0 --seeds 0
 """
 
 from __future__ import annotations
@@ -24,35 +26,52 @@ from pathlib import Path
 from general_recipe import copy_run_files, drem_sac_configs, examination_measures  # experiments/ is the folder
 
 RESULTS = Path("docs/results/general")
-STALL_ROUND = {"rounds": {"rounds": 1, "sac_steps": 50_000, "episodes": 20, "iterations": 1_000,
-                          "stall_window": 0.25}}
-# What the round's SAC config may differ in from the build's run: where it lives, what pays it (the same file,
-# sha256-checked on resume), how it is evaluated and whether its env steps in a child process.
-ROUND_ONLY = {"out", "reward_checkpoint", "eval_every", "eval_episodes", "steps", "overlap_env"}
+# What the round's SAC config may differ in from the run it takes: where it lives, what pays it (the same file,
+# sha256-checked on resume), how it is evaluated, whether its env steps in a child process, and its seed (a round's
+# is seed + k - 1; either is one SAC run on the round's reward).
+ROUND_ONLY = {"out", "reward_checkpoint", "eval_every", "eval_episodes", "steps", "overlap_env", "seed"}
 
 
-def link_build(build: Path, work: Path) -> None:
-    """The build's demo, tree and first training in ``work`` as hard links (their stages are then skipped)."""
-    for name in ("expert", "tree.h5", "reward"):
+def stall_rounds(rounds: int) -> dict:
+    """The recipe's ``[rounds]``: ``rounds`` rounds with stalls, each from a 50,000-step policy."""
+    return {"rounds": {"rounds": rounds, "sac_steps": 50_000, "episodes": 20, "iterations": 1_000,
+                       "stall_window": 0.25}}
+
+
+def folders(out: Path, task: str, k: int) -> tuple:
+    """Round ``k``'s work folder, the folder it goes on from, and the folder of the SAC runs its policy comes from."""
+    work = out / ("stall" if k == 1 else f"stall{k}") / task
+    if k == 1:
+        return work, out / "build" / task, out / task / "drem"
+    previous = folders(out, task, k - 1)[0]
+    return work, previous, previous / "sac"
+
+
+def link_build(build: Path, work: Path, k: int) -> None:
+    """The demo, tree, first training and rounds before ``k`` of ``build`` in ``work`` as hard links (their stages are
+    then skipped)."""
+    for name in ("expert", "tree.h5", "reward", *(f"rounds/round_{j}" for j in range(1, k))):
         src, dest = build / name, work / name
         if dest.exists():
             continue
         if src.is_dir():
             shutil.copytree(src, dest, copy_function=os.link)
         else:
+            dest.parent.mkdir(parents=True, exist_ok=True)
             os.link(src, dest)
 
 
-def place_policy(task: str, work: Path, run: Path, rounds) -> None:
-    """The finished SAC run ``run`` as round 1's policy (``rounds/round_1/sac``), its config the round's."""
+def place_policy(task: str, work: Path, run: Path, rounds, k: int) -> None:
+    """The finished SAC run ``run`` as round ``k``'s policy (``rounds/round_<k>/sac``), its config the round's."""
     from drem_maniskill.pipeline.policy_rounds import round_policy_config
     from drem_maniskill.rl.config import RLConfig
 
-    round_dir = work / "rounds" / "round_1"
+    round_dir = work / "rounds" / f"round_{k}"
     dest = round_dir / "sac"
     if dest.exists():
         return
-    config = round_policy_config(task, work / "reward" / "drem.pt", rounds, 1, round_dir)
+    paid_by = work / ("reward" if k == 1 else f"rounds/round_{k - 1}/train") / "drem.pt"
+    config = round_policy_config(task, paid_by, rounds, k, round_dir)
     saved = RLConfig.load(run / "config.json")
     differ = {f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(saved, f.name)}
     if differ - ROUND_ONLY:
@@ -69,24 +88,26 @@ def main() -> None:
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", required=True)
-    p.add_argument("--policy-seed", type=int, default=0, help="the build's SAC run used as round 1's policy")
+    p.add_argument("--round", type=int, default=1, help="the round (from the folder of the round before it)")
+    p.add_argument("--policy-seed", type=int, default=0, help="the SAC run taken as the round's policy")
     p.add_argument("--seeds", nargs="*", type=int, default=[0, 1], help="state SAC seeds on the new reward")
     p.add_argument("--steps", type=int, default=50_000)
     p.add_argument("--out", default="outputs/general")
     args = p.parse_args()
     out, task = Path(args.out), args.task
-    work = out / "stall" / task
-    recipe = merge(GENERAL_DEFAULTS, STALL_ROUND)
+    work, previous, runs = folders(out, task, args.round)
+    recipe = merge(GENERAL_DEFAULTS, stall_rounds(args.round))
     work.mkdir(parents=True, exist_ok=True)
-    link_build(out / "build" / task, work)
-    place_policy(task, work, out / task / "drem" / f"seed{args.policy_seed}",
-                 load_recipe(task, "full", recipe).rounds_config())
+    link_build(previous, work, args.round)
+    place_policy(task, work, runs / f"seed{args.policy_seed}", load_recipe(task, "full", recipe).rounds_config(),
+                 args.round)
     checkpoint = build_reward(task, scale="full", out=work, recipe=recipe)
     header, _ = load_checkpoint(str(checkpoint))
     quality = json.loads((work / "quality.json").read_text())
-    dest = RESULTS / task / "stall_round"
+    dest = RESULTS / task / ("stall_round" if args.round == 1 else f"stall_round_{args.round}")
     dest.mkdir(parents=True, exist_ok=True)
-    summary = dict(task=task, policy=f"drem/seed{args.policy_seed}", recipe_rounds=STALL_ROUND["rounds"],
+    summary = dict(task=task, policy=str(runs.relative_to(out) / f"seed{args.policy_seed}"),
+                   recipe_rounds=stall_rounds(args.round)["rounds"],
                    round=header["rounds"][-1], **examination_measures(quality))
     (dest / "examination.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(json.dumps(summary["round"]), flush=True)
