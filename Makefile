@@ -18,4 +18,4 @@ demo: setup
 	$(VENV)/bin/drem-maniskill demo --out outputs/demo
 
 test: setup
-	$(VENV)/bin/python -m pytest -q -n auto --dist loadscope --no-loadscope-reorder --durations=20 $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest -q -n auto --dist loadscope --durations=20 $(PYTEST_ARGS)

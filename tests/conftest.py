@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 
 import gymnasium as gym
 import pytest
@@ -35,15 +34,9 @@ def make_env(task: str, **kwargs):
     return _cache[key]
 
 
-# Each module's seconds in a whole run (scripts/test_durations.py); a module it lacks counts as quick.
-DURATIONS = json.loads((Path(__file__).parent / "durations.json").read_text())
-
-
 def pytest_collection_modifyitems(config, items):
-    """The slowest modules first, and in each its slow tests first: with one xdist worker per core and a module on
-    one worker (``--dist loadscope`` without reordering), a long one left for last would run alone at the end."""
-    items.sort(key=lambda item: (-DURATIONS.get(item.nodeid.split("::")[0], 0),
-                                 item.get_closest_marker("slow") is None))
+    """The slow tests first: with one xdist worker per core, a long test left for last would run alone at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(scope="session", autouse=True)
