@@ -75,13 +75,13 @@ def place_policy(task: str, work: Path, run: Path, rounds, k: int) -> None:
     saved = RLConfig.load(run / "config.json")
     differ = {f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(saved, f.name)}
     if differ - ROUND_ONLY:
-        raise ValueError(f"{run} is not the SAC run round 1 trains: it differs in {sorted(differ - ROUND_ONLY)}")
+        raise ValueError(f"{run} is not the SAC run round {k} trains: it differs in {sorted(differ - ROUND_ONLY)}")
     shutil.copytree(run, dest, ignore=shutil.ignore_patterns(".lock"))
     config.save(dest / "config.json")
 
 
 def main() -> None:
-    """Run the stall round on the build's reward, then SAC on its checkpoint through the sweep."""
+    """Run round ``--round`` on the folder before it, then SAC on the reward it leaves, through the sweep."""
     from drem_maniskill.drem.checkpoint import load_checkpoint
     from drem_maniskill.pipeline.build_reward import build_reward
     from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, load_recipe, merge

@@ -65,3 +65,33 @@ def test_a_kept_build_is_restored_instead_of_built_and_one_of_another_recipe_is_
     with pytest.raises(RecipeError, match="another recipe"):
         general_recipe.timed_build("PegInHole-v1", tmp_path / "third", {"train": {"iterations": 7}}, keep=keep)
     assert not (tmp_path / "third" / "drem.pt").exists()
+
+
+def test_a_stall_round_takes_a_finished_sac_run_as_its_policy_only_when_the_round_would_train_that_run(tmp_path):
+    """place_policy: the general build's state SAC run (other folder, evaluations and env process) becomes round k's
+    policy under the round's config; a run of another preset setting is refused, and round k's folder follows k - 1."""
+    import stall_round
+
+    from drem_maniskill.pipeline.policy_rounds import RoundsConfig
+    from drem_maniskill.rl.config import RLConfig
+
+    rounds = RoundsConfig(**stall_round.stall_rounds(2)["rounds"])
+    run = tmp_path / "runs" / "seed0"
+    run.mkdir(parents=True)
+    RLConfig.from_preset("state", task="PegInHole-v1", reward="drem", seed=0, steps=50_000, out=str(run),
+                         reward_checkpoint="elsewhere/drem.pt", overlap_env=False).save(run / "config.json")
+    (run / "eval.csv").write_text("steps,success_rate\n50000,0.0\n")
+    stall_round.place_policy("PegInHole-v1", tmp_path / "work", run, rounds, 2)
+    placed = RLConfig.load(tmp_path / "work" / "rounds" / "round_2" / "sac" / "config.json")
+    assert placed.seed == 1 and placed.eval_every == 50_000 and placed.out.endswith("round_2/sac")
+    assert placed.reward_checkpoint.endswith("rounds/round_1/train/drem.pt")
+    assert (tmp_path / "work" / "rounds" / "round_2" / "sac" / "eval.csv").is_file()
+
+    RLConfig.from_preset("state", task="PegInHole-v1", reward="drem", seed=0, steps=50_000, out=str(run),
+                         learning_rate=1e-3).save(run / "config.json")
+    with pytest.raises(ValueError, match=r"not the SAC run round 1 trains: it differs in \['learning_rate'\]"):
+        stall_round.place_policy("PegInHole-v1", tmp_path / "other", run, rounds, 1)
+
+    out = Path("outputs/general")
+    assert stall_round.folders(out, "T", 1) == (out / "stall" / "T", out / "build" / "T", out / "T" / "drem")
+    assert stall_round.folders(out, "T", 2) == (out / "stall2" / "T", out / "stall" / "T", out / "stall" / "T" / "sac")
