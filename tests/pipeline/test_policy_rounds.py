@@ -30,8 +30,7 @@ STALLS = dataclasses.replace(ROUNDS, stall_window=0.25)
 
 SCRIPT = """
 import json, sys
-from drem_maniskill.pipeline.policy_rounds import (RoundsConfig, paid_by_depth, run_rounds, stall_depth,
-                                                   stalled_steps)
+from drem_maniskill.pipeline.policy_rounds import RoundsConfig, run_rounds
 from drem_maniskill.pipeline.train_reward import TrainConfig
 a = json.loads(sys.argv[1])
 config = TrainConfig(**{**a["train"], "model": __import__("drem_maniskill.drem.model", fromlist=["ModelConfig"])
