@@ -139,8 +139,10 @@ def test_trials_keep_to_their_cpu_share_while_reporting_their_start(tmp_path):
     finally:
         ray.shutdown()
     assert reported == list(range(3))
+    # Never three at once. Two overlap only where Ray starts their workers together, which a busy machine (the other
+    # test worker building a tree) does not promise: there each trial may run alone.
     most = max(sum(a <= t < b for a, b in spans) for t, _ in spans)
-    assert most == 2, spans
+    assert 1 <= most <= 2, spans
 
 
 @pytest.mark.slow
