@@ -82,38 +82,35 @@ def round_policy_config(task: str, checkpoint, config: RoundsConfig, k: int, rou
                                 reward_checkpoint=str(checkpoint), out=str(round_dir / "sac"))
 
 
-@torch.no_grad()
-def paid_at_depth(checkpoint, tree: str, depth: int, image_size: Optional[int] = None) -> float:
-    """The mean ``R`` the reward pays the tree's nodes at ``depth`` (the nearest depth the tree has)."""
+def tree_pay(checkpoint, tree: str) -> tuple:
+    """``(reward, tree)``: the ``DREMReward`` of ``checkpoint`` and the tree as its model reads it, loaded once for
+    ``paid_at_depth`` and ``paid_by_depth``."""
     from drem_maniskill.drem.reward import DREMReward
     from drem_maniskill.pipeline.dataset import TreeDataset
 
     reward = DREMReward.from_checkpoint(str(checkpoint))
-    data = TreeDataset(tree, reward.model.config)
-    nearest = min(data.by_depth, key=lambda d: abs(d - depth))
-    idx = data.by_depth[nearest][:256]
+    return reward, TreeDataset(tree, reward.model.config)
+
+
+@torch.no_grad()
+def _mean_paid(reward, data, idx) -> float:
+    """The mean ``R`` ``reward`` pays the tree's nodes ``idx``."""
     batch = data.batch(idx)
     if not reward.uses_ft:
         batch.pop("ft")
     return float(reward(batch).mean())
 
 
-@torch.no_grad()
-def paid_by_depth(checkpoint, tree: str, per_depth: int = 64) -> tuple:
-    """What the reward pays the tree's nodes, by depth: ``(depths, mean R)``, depths ascending (the goal first)."""
-    from drem_maniskill.drem.reward import DREMReward
-    from drem_maniskill.pipeline.dataset import TreeDataset
+def paid_at_depth(reward, data, depth: int) -> float:
+    """The mean ``R`` the reward pays the tree's nodes at ``depth`` (the nearest depth the tree has; ``tree_pay``)."""
+    nearest = min(data.by_depth, key=lambda d: abs(d - depth))
+    return _mean_paid(reward, data, data.by_depth[nearest][:256])
 
-    reward = DREMReward.from_checkpoint(str(checkpoint))
-    data = TreeDataset(tree, reward.model.config)
+
+def paid_by_depth(reward, data, per_depth: int = 64) -> tuple:
+    """What the reward pays the tree's nodes, by depth: ``(depths, mean R)``, depths ascending (the goal first)."""
     depths = np.array(sorted(data.by_depth))
-    paid = []
-    for d in depths:
-        batch = data.batch(data.by_depth[int(d)][:per_depth])
-        if not reward.uses_ft:
-            batch.pop("ft")
-        paid.append(float(reward(batch).mean()))
-    return depths, np.array(paid)
+    return depths, np.array([_mean_paid(reward, data, data.by_depth[int(d)][:per_depth]) for d in depths])
 
 
 def stall_depth(paid: float, depths: np.ndarray, paid_curve: np.ndarray, eps: float) -> int:
@@ -191,11 +188,13 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
     record_path = round_dir / "collected.json"
     if not record_path.exists():
         result = train_policy(run)
-        threshold = paid_at_depth(checkpoint, tree, depth)
+        reward, data = tree_pay(checkpoint, tree)
+        threshold = paid_at_depth(reward, data, depth)
         stall_label = None
         if config.stall_window > 0:
-            depths, paid = paid_by_depth(checkpoint, tree)
+            depths, paid = paid_by_depth(reward, data)
             stall_label = functools.partial(stall_depth, depths=depths, paid_curve=paid, eps=train_config.eps)
+        del reward, data  # the tree's images: the episodes and the fine-tuning load their own
         found = collect_negatives(run, checkpoint, threshold, config, k, depth, stall_label)
         write_negatives(round_dir / "negatives.h5", found["rows"], found["depths"], train_config.model.cameras,
                         "ft" in train_config.model.modalities)

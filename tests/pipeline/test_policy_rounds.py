@@ -19,7 +19,7 @@ import torch
 
 from drem_maniskill.drem.checkpoint import load_checkpoint
 from drem_maniskill.pipeline.policy_rounds import (RoundsConfig, paid_by_depth, run_rounds, stall_depth,
-                                                   stalled_steps)
+                                                   stalled_steps, tree_pay)
 from drem_maniskill.pipeline.recipe import RecipeError, load_recipe
 
 # One round: 300 SAC steps (gradient steps after 200), two policy episodes, 60 fine-tuning iterations.
@@ -83,7 +83,7 @@ def test_a_round_adds_the_over_paid_and_stalled_states_of_failed_episodes_and_pa
     # Stalls: paid less, from an episode's last quarter, labelled eps + 1 beyond the depth paid no more than them.
     stall = ~trap
     assert stall.sum() == record["stall_candidates"] > 0 and 1 <= record["stalled"] <= 2
-    curve = paid_by_depth(checkpoint, tree)
+    curve = paid_by_depth(*tree_pay(checkpoint, tree))
     assert list(depth[stall]) == [stall_depth(float(r), *curve, config.eps) for r in paid[stall]]
     assert all(depth[stall] > curve[0][curve[1] <= paid[stall].max()].min())
     horizon = max(step) + 1
