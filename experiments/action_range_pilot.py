@@ -42,9 +42,8 @@ def spread_above_opening(tree: Path) -> list:
     with h5py.File(tree, "r") as f:
         depth, tip = f["depth"][()], f["tip_in_socket"][()] * 1000
     rows = []
-    for d in np.unique(depth):
+    for d, height in zip(np.unique(depth), _median_heights(depth, tip)):
         at = tip[depth == d]
-        height = float(np.median(at[:, 2]))
         if 0 <= height <= 20 and len(at) > 1:
             off = np.hypot(at[:, 0], at[:, 1])
             rows.append(dict(depth=int(d), height_mm=round(height, 1), off_axis_mm_p50=round(float(np.median(off)), 2),
@@ -61,7 +60,7 @@ def offset_readout(tree: Path, sizes=(32, 64, 128), ridge: float = 1.0) -> dict:
 
     with h5py.File(tree, "r") as f:
         depth, tip = f["depth"][()], f["tip_in_socket"][()] * 1000
-        heights = np.array(_median_heights(f, depth))
+        heights = np.array(_median_heights(depth, tip))
         above = np.unique(depth)[(heights >= 0) & (heights <= 20)]
         idx = np.nonzero(np.isin(depth, above) & (np.hypot(tip[:, 0], tip[:, 1]) < 20))[0]  # not the outward lineages
         offset = tip[idx, :2]
@@ -82,10 +81,10 @@ def offset_readout(tree: Path, sizes=(32, 64, 128), ridge: float = 1.0) -> dict:
     return out
 
 
-def _median_heights(f, depth: np.ndarray) -> list:
-    """Each depth's median tip height above the opening (mm), depths ascending."""
-    tip = f["tip_in_socket"][()][:, 2] * 1000
-    return [float(np.median(tip[depth == d])) for d in np.unique(depth)]
+def _median_heights(depth: np.ndarray, tip: np.ndarray) -> list:
+    """Each depth's median tip height above the opening (``tip``: the nodes' tips in the socket's frame, mm), depths
+    ascending."""
+    return [float(np.median(tip[depth == d, 2])) for d in np.unique(depth)]
 
 
 def main() -> None:
