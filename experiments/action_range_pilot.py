@@ -1,16 +1,18 @@
-"""Whether the sampler's action range makes the reward flat across a socket's mouth: the general recipe's range
-against one expert step.
+"""Whether the tree makes the reward flat across a socket's mouth: the general recipe's action range against one expert
+step, and its depths against travel labels.
 
 Backward sampling labels every child of a seed with the seed's depth plus one, however far its random action moved
 it. Where the part moves freely (above the opening) the children of the general recipe's range (four times the
 expert's step, at least ``min_action_scale``) spread several millimetres around the demo's path, all at one depth, so
 the tree may itself teach that a part off the axis at the opening is as far along as one on it. This pilot builds the
-reward of ``task`` twice at a smaller scale of training (``ITERATIONS``), under the general recipe (its tree taken
-from the full build of ``experiments/general.py``, ``<out>/build/<task>``) and with the range of one expert step
-(``NARROW``), and reports for each the tree's spread at the opening (``tip_in_socket``, a measure the sampler never
-reads) and the examination's measures, ``mouth_off_axis_over_on_axis`` among them; beside them, how well each camera's
-image tells the offset at all (``offset_readout``). Written to ``docs/results/general/<task>/action_range_pilot.json``.
-``--full`` adds the narrow range at the recipe's own 20,000 iterations, on the narrow pilot's tree. Rerunning resumes
+reward of ``task`` at a smaller scale of training (``ITERATIONS``) three ways: under the general recipe (its tree taken
+from the full build of ``experiments/general.py``, ``<out>/build/<task>``), with the range of one expert step
+(``NARROW``), and on the general tree with travel labels (``TRAVEL``: a child labelled by how far it moved from its
+seed, in the demo's steps), and reports for each the tree's spread at the opening (``tip_in_socket``, a measure the
+sampler never reads) and the examination's measures, ``mouth_off_axis_over_on_axis`` among them; beside them, how well
+each camera's image tells the offset at all (``offset_readout``). Written to
+``docs/results/general/<task>/action_range_pilot.json``. ``--full`` adds the narrow range and the travel labels at the
+recipe's own 20,000 iterations; ``--only`` builds the named ones (the rest are read where built). Rerunning resumes
 every build.
 
     .venv/bin/python experiments/action_range_pilot.py --task SquarePegInHole-v1
@@ -31,9 +33,11 @@ RESULTS = Path("docs/results/general")
 ITERATIONS = {"train": {"iterations": 5_000}}
 # One expert step (not four), and a floor of 1 % of the controller's translation limit (not 5 %).
 NARROW = {"sampler": {"expert_step_scale": 1.0, "min_action_scale": 0.01}}
+TRAVEL = {"train": {"travel_labels": True}}
 # Name -> (the recipe's changes, the build whose demo and tree it takes: None samples its own).
-PILOTS = {"general": ((ITERATIONS,), "build/{task}"), "narrow": ((NARROW, ITERATIONS), None)}
-FULL = {"narrow_20k": ((NARROW,), "action_range_pilot/{task}/narrow")}
+PILOTS = {"general": ((ITERATIONS,), "build/{task}"), "narrow": ((NARROW, ITERATIONS), None),
+          "travel": ((TRAVEL, ITERATIONS), "build/{task}")}
+FULL = {"narrow_20k": ((NARROW,), "action_range_pilot/{task}/narrow"), "travel_20k": ((TRAVEL,), "build/{task}")}
 
 
 def spread_above_opening(tree: Path) -> list:
@@ -87,32 +91,43 @@ def _median_heights(depth: np.ndarray, tip: np.ndarray) -> list:
     return [float(np.median(tip[depth == d, 2])) for d in np.unique(depth)]
 
 
+def _measures(parts: tuple, tree_from, work: Path) -> dict:
+    """A finished pilot's record: its recipe changes, the examination's measures, the tree's spread at the opening."""
+    quality = json.loads((work / "quality.json").read_text())
+    return dict(recipe_changes=parts, tree_from=tree_from, **examination_measures(quality),
+                spread_above_opening=spread_above_opening(work / "tree.h5"))
+
+
 def main() -> None:
-    """Build both pilots (resuming) and write their measures."""
+    """Build the pilots (resuming) and write their measures."""
     from drem_maniskill.pipeline.build_reward import build_reward
     from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, merge
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", required=True)
     p.add_argument("--out", default="outputs/general")
-    p.add_argument("--full", action="store_true", help="also the narrow range at 20,000 iterations")
+    p.add_argument("--full", action="store_true", help="also the narrow range and travel labels at 20,000 iterations")
+    p.add_argument("--only", nargs="+", choices=[*PILOTS, *FULL],
+                   help="build only these; the rest are read where built")
     args = p.parse_args()
     out, task = Path(args.out), args.task
     summary = {}
-    for name, (parts, tree_from) in {**PILOTS, **(FULL if args.full else {})}.items():
+    for name, (parts, tree_from) in {**PILOTS, **(FULL if args.full or args.only else {})}.items():
         recipe = GENERAL_DEFAULTS
         for part in parts:
             recipe = merge(recipe, part)
         work = out / "action_range_pilot" / task / name
+        if args.only and name not in args.only:
+            if (work / "quality.json").is_file():
+                summary[name] = _measures(parts, tree_from, work)
+            continue
         work.mkdir(parents=True, exist_ok=True)
         for entry in ("expert", "tree.h5") if tree_from else ():  # the same demo and tree: only the training differs
             if not (work / entry).exists():
                 src = out / tree_from.format(task=task) / entry
                 os.symlink(src.resolve(), work / entry, target_is_directory=src.is_dir())
         build_reward(task, scale="full", out=work, recipe=recipe)
-        quality = json.loads((work / "quality.json").read_text())
-        summary[name] = dict(recipe_changes=parts, tree_from=tree_from, **examination_measures(quality),
-                             spread_above_opening=spread_above_opening(work / "tree.h5"))
+        summary[name] = _measures(parts, tree_from, work)
         print(name, json.dumps({k: summary[name][k] for k in ("value_order_spearman", "mouth_off_axis_over_on_axis")}),
               flush=True)
     summary["offset_readout"] = offset_readout(out / "build" / task / "tree.h5")

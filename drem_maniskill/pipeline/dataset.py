@@ -13,6 +13,7 @@ import torch.nn.functional as F
 from drem_maniskill.drem.model import CAMERA_OF, ModelConfig
 from drem_maniskill.pipeline.negatives import open_negatives
 from drem_maniskill.pipeline.tree import tree_file
+from drem_maniskill.pipeline.tree.backward import ee_distance, median_step
 from drem_maniskill.pipeline.tree.config import SamplerConfig
 
 
@@ -30,10 +31,31 @@ def dataset_modalities(path: str) -> tuple:
     return tuple(m for m in ("fixed", "wrist") if m in cams) + ft
 
 
-class TreeDataset:
-    """The progress tree in memory: uint8 images at the model's size, F/T, scene poses (when read), depths."""
+def travel_labels(f) -> np.ndarray:
+    """Temporal labels of an open tree's nodes in the demo's median steps: a seed at its depth, any other child at its
+    seed's depth plus how far its random action carried the hand from the seed (``ee_distance``, over the demo's median
+    step). The paper's depths give every child of a seed one label however far it moved; these keep the seeds' chain
+    and put a child that wandered far beside its seed farther from the goal than one that stayed near it."""
+    depth, parent = f["depth"][()].astype(np.float64), f["parent"][()]
+    header = tree_file.read_header(f)
+    rotation_weight = SamplerConfig.from_dict(header.get("config", {})).rotation_weight
+    unit = median_step(f["expert/tcp_pose"][()].astype(np.float64), rotation_weight)
+    if unit <= 0:
+        raise ValueError(f"{f.filename}: the demo's hand never moves, so travel labels have no unit; train with "
+                         "travel_labels off")
+    tcp = f["tcp_pose"][()].astype(np.float64)
+    child = ~f["is_seed"][()] & (parent >= 0)
+    labels = depth.copy()
+    labels[child] = depth[parent[child]] + ee_distance(tcp[child], tcp[parent[child]], rotation_weight) / unit
+    return labels
 
-    def __init__(self, path: str, config: ModelConfig):
+
+class TreeDataset:
+    """The progress tree in memory: uint8 images at the model's size, F/T, scene poses (when read), depths, and the
+    temporal labels the triplet loss reads (the depths, or ``travel_labels``)."""
+
+    def __init__(self, path: str, config: ModelConfig, travel: bool = False):
+        self.travel = travel
         with tree_file.open_tree(path) as f:
             self.header = tree_file.read_header(f)
             try:  # every field, the ones the tree's header leaves out at their defaults
@@ -60,6 +82,7 @@ class TreeDataset:
                     f"train with --modalities {' '.join(sorted(self.camera_map))}"
                 )
             self.depth = torch.as_tensor(f["depth"][()]).long()
+            self.label = self._labels(f)
             flags = f["in_start_region"][()]
             if not flags.any():
                 raise ValueError(
@@ -86,6 +109,12 @@ class TreeDataset:
         self.goal_index = int(torch.nonzero(self.depth == 0)[0])
         self.tree_nodes = len(self.depth)
         self._index_depths()
+
+    def _labels(self, f) -> torch.Tensor:
+        """The temporal labels of an open tree's (or negatives file's) nodes: travel labels for a tree when asked."""
+        if self.travel and "parent" in f:
+            return torch.as_tensor(travel_labels(f)).float()
+        return torch.as_tensor(f["depth"][()]).float()
 
     def _index_depths(self) -> None:
         self.by_depth = {int(d): torch.nonzero(self.depth == d).flatten() for d in torch.unique(self.depth)}
@@ -122,6 +151,7 @@ class TreeDataset:
                                  "re-collect it with this version")
             self.poses = torch.cat([self.poses, torch.as_tensor(f["poses"][()]).float()])
         self.depth = torch.cat([self.depth, depth])
+        self.label = torch.cat([self.label, self._labels(f)])
         return len(depth)
 
     def add_negatives(self, paths, config: ModelConfig) -> int:

@@ -48,6 +48,9 @@ class TrainConfig:
     """Bound of the triplet loss for neighbouring pairs: the later state may be closer to the goal by at most this."""
     alpha: float = 0.2
     """Weight of the reconstruction loss beside the triplet loss."""
+    travel_labels: bool = False
+    """The triplet loss reads each tree node's travel label (its seed's depth plus how far its random action moved the
+    hand, in the demo's median steps; ``dataset.travel_labels``) rather than its depth (beyond the paper)."""
     pairs_per_batch: int = 32
     """Pairs per iteration, half temporally neighbouring and half not."""
     seed: int = 0
@@ -91,7 +94,7 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     out.mkdir(parents=True, exist_ok=True)
     if config.threads:
         torch.set_num_threads(config.threads)
-    data = TreeDataset(dataset_path, config.model)
+    data = TreeDataset(dataset_path, config.model, travel=config.travel_labels)
     data.add_trees(trees, config.model)
     negative_nodes = data.add_negatives(negatives, config.model)
     if data.poses is not None:  # the scene-poses vector's length is the env's, read from its tree
@@ -142,8 +145,8 @@ def _losses(model: DREMModel, data: TreeDataset, goal: dict, config: TrainConfig
     h_goal, h = h[-1:], h[:-1]
     dist = cosine_distance(h, h_goal)
     n = len(a)
-    # Temporal position = -depth: the goal (depth 0) comes last.
-    ta, tb = -data.depth[a].to(device), -data.depth[b].to(device)
+    # Temporal position = -label (the depth unless travel labels): the goal (0) comes last.
+    ta, tb = -data.label[a].to(device), -data.label[b].to(device)
     l_triplet = triplet_loss(dist[:n], dist[n:], ta, tb, config.eps, config.beta1, config.beta2).mean()
     l_recon = reconstruction_loss(recon, inputs)
     return (l_triplet + config.alpha * l_recon, l_triplet, l_recon), len(idx) + 1
@@ -284,7 +287,9 @@ def _resume(state_path: Path, model, opt, gen, config_json: dict, dataset_path: 
     state = torch.load(state_path, map_location="cpu", weights_only=True)
     # The same file with other contents (a re-sampled tree) starts over rather than training on a mix.
     same_data = state["dataset"] == str(Path(dataset_path).resolve()) and state.get("nodes", nodes) == nodes
-    if _resumable(json.loads(state["config"])) != _resumable(config_json) or not same_data:
+    # A setting the saved run predates counts at its default: that is what it trained with.
+    saved = {**json.loads(json.dumps(asdict(TrainConfig()))), **json.loads(state["config"])}
+    if _resumable(saved) != _resumable(config_json) or not same_data:
         return 0
     model.load_state_dict(state["model"])
     opt.load_state_dict(_unflatten_opt(state["opt"]))

@@ -109,3 +109,72 @@ def test_the_dataset_hands_on_the_trees_config_and_refuses_one_it_cannot_read(pi
             f.attrs["header"] = json.dumps({**header, "config": unread})
         with pytest.raises(ValueError, match=f"{list(unread)[-1]}.*drem-maniskill sample"):
             TreeDataset(str(old), config)
+
+
+def test_travel_labels_put_a_child_that_wandered_farther_than_one_beside_its_seed(tmp_path):
+    """Seeds keep their depth; another child gets its seed's depth plus its hand's move from the seed over the demo's
+    median step (rotation weighted as the sampler weighs it), so two children of one depth differ."""
+    import numpy as np
+
+    from drem_maniskill.pipeline.dataset import travel_labels
+
+    q = [1.0, 0, 0, 0]
+    turned = [np.cos(0.05), np.sin(0.05), 0, 0]  # 0.1 rad about x
+    tcp = np.array([[0, 0, 0.00, *q],      # goal, seed of depth 0
+                    [0, 0, 0.01, *q],      # depth 1, seed: 10 mm above the goal
+                    [0.002, 0, 0.0, *q],   # depth 1, 2 mm beside the goal
+                    [0, 0, 0.0, *turned],  # depth 1, turned 0.1 rad at the goal
+                    [0.006, 0, 0.01, *q],  # depth 2, 6 mm beside its seed (node 1)
+                    [0, 0, 0.011, *q]])    # depth 2, 1 mm above its seed
+    demo = np.array([[0, 0, z, *q] for z in (0.006, 0.004, 0.002, 0.0)])  # the demo's median step: 2 mm
+    with h5py.File(tmp_path / "tree.h5", "w") as f:
+        f["depth"], f["parent"] = np.array([0, 1, 1, 1, 2, 2]), np.array([-1, 0, 0, 0, 1, 1])
+        f["is_seed"] = np.array([True, True, False, False, False, False])
+        f["tcp_pose"], f["expert/tcp_pose"] = tcp, demo
+        f.attrs["header"] = json.dumps(dict(env_id="PegInHole-v1", config=dict(rotation_weight=0.05)))
+    with h5py.File(tmp_path / "tree.h5", "r") as f:
+        labels = travel_labels(f)
+    # 0.1 rad at 0.05 m/rad is 5 mm of travel: 2.5 steps.
+    assert np.allclose(labels, [0, 1, 1.0, 2.5, 4.0, 1.5])
+    with h5py.File(tmp_path / "still.h5", "w") as f:
+        f["depth"], f["parent"], f["is_seed"] = np.array([0, 1]), np.array([-1, 0]), np.array([True, False])
+        f["tcp_pose"], f["expert/tcp_pose"] = tcp[:2], np.array([tcp[0], tcp[0]])
+        f.attrs["header"] = json.dumps(dict(env_id="PegInHole-v1"))
+    with h5py.File(tmp_path / "still.h5", "r") as f, pytest.raises(ValueError, match="never moves"):
+        travel_labels(f)
+
+
+@pytest.mark.slow
+def test_training_with_travel_labels_reads_them_and_resumes_only_under_them(pipeline, tmp_path):
+    """The dataset hands the loss travel labels when asked (depths otherwise); a training state resumes under the
+    labelling it was saved with, one saved before the setting existed as depths, never under the other."""
+    from dataclasses import asdict
+
+    import torch
+
+    from drem_maniskill.pipeline import train_reward as tr
+    from drem_maniskill.pipeline.dataset import TreeDataset
+
+    config = TrainConfig.preset("tiny")
+    plain = TreeDataset(pipeline["tree"], config.model)
+    travel = TreeDataset(pipeline["tree"], config.model, travel=True)
+    assert torch.equal(plain.label, plain.depth.float())
+    with h5py.File(pipeline["tree"], "r") as f:
+        seeds = torch.as_tensor(f["is_seed"][()])
+    assert torch.equal(travel.label[seeds], travel.depth[seeds].float())
+    assert not torch.equal(travel.label[~seeds], travel.depth[~seeds].float())
+    train_reward(pipeline["tree"], str(tmp_path / "r"), config, progress=False)
+    state_path = tmp_path / "r" / "train_state.pt"
+
+    def resumes_at(cfg: TrainConfig) -> int:
+        model = tr._build_model(cfg, plain, None)
+        opt, gen = torch.optim.Adam(model.parameters()), torch.Generator()
+        return tr._resume(state_path, model, opt, gen, json.loads(json.dumps(asdict(cfg))), pipeline["tree"],
+                          len(plain.depth))
+
+    travelled = TrainConfig.preset("tiny", travel_labels=True)
+    assert resumes_at(config) == config.iterations and resumes_at(travelled) == 0
+    state = torch.load(state_path, weights_only=True)
+    older = {k: v for k, v in json.loads(state["config"]).items() if k != "travel_labels"}
+    torch.save({**state, "config": json.dumps(older)}, state_path)
+    assert resumes_at(config) == config.iterations and resumes_at(travelled) == 0
