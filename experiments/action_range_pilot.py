@@ -11,9 +11,9 @@ from the full build of ``experiments/general.py``, ``<out>/build/<task>``), with
 seed, in the demo's steps), and reports for each the tree's spread at the opening (``tip_in_socket``, a measure the
 sampler never reads) and the examination's measures, ``mouth_off_axis_over_on_axis`` among them; beside them, how well
 each camera's image tells the offset at all (``offset_readout``). Written to
-``docs/results/general/<task>/action_range_pilot.json``. ``--full`` adds the narrow range and the travel labels at the
-recipe's own 20,000 iterations; ``--only`` builds the named ones (the rest are read where built). Rerunning resumes
-every build.
+``docs/results/general/<task>/action_range_pilot.json``. ``--full`` adds the narrow range at the recipe's own 20,000
+iterations (travel labels at that scale, with SAC on them: ``experiments/travel_labels.py``); ``--only`` builds the
+named ones (the rest are read where built). Rerunning resumes every build.
 
     .venv/bin/python experiments/action_range_pilot.py --task SquarePegInHole-v1
 """
@@ -37,7 +37,7 @@ TRAVEL = {"train": {"travel_labels": True}}
 # Name -> (the recipe's changes, the build whose demo and tree it takes: None samples its own).
 PILOTS = {"general": ((ITERATIONS,), "build/{task}"), "narrow": ((NARROW, ITERATIONS), None),
           "travel": ((TRAVEL, ITERATIONS), "build/{task}")}
-FULL = {"narrow_20k": ((NARROW,), "action_range_pilot/{task}/narrow"), "travel_20k": ((TRAVEL,), "build/{task}")}
+FULL = {"narrow_20k": ((NARROW,), "action_range_pilot/{task}/narrow")}
 
 
 def spread_above_opening(tree: Path) -> list:
@@ -106,7 +106,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", required=True)
     p.add_argument("--out", default="outputs/general")
-    p.add_argument("--full", action="store_true", help="also the narrow range and travel labels at 20,000 iterations")
+    p.add_argument("--full", action="store_true", help="also the narrow range at 20,000 iterations")
     p.add_argument("--only", nargs="+", choices=[*PILOTS, *FULL],
                    help="build only these; the rest are read where built")
     args = p.parse_args()

@@ -1,0 +1,63 @@
+"""The general recipe with travel labels on a finished general-recipe build, then state SAC on the reward it gives.
+
+The general recipe labels every child of a seed with the seed's depth plus one, however far its random action carried
+the part; with ``[train] travel_labels`` a child is labelled its seed's depth plus how far its action moved the hand,
+in the demo's median steps (``drem_maniskill.pipeline.dataset.travel_labels``), so that a part that wandered off the
+demo's path sits farther from the goal than one beside it. This trains that reward at the recipe's own scale on the
+demo and tree of ``experiments/general.py``'s build (``<out>/build/<task>``, linked: only the training differs), in
+``<out>/travel/<task>``, examines it, and trains state SAC on it through the sweep into ``<out>/travel/<task>/sac``.
+The examination's measures and each run's small files go to ``docs/results/general/<task>/travel/``. Rerunning the
+command resumes every stage.
+
+    .venv/bin/python experiments/travel_labels.py --task SquarePegInHole-v1 --seeds 0 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+from general_recipe import copy_run_files, drem_sac_configs, examination_measures  # experiments/ is the folder
+
+RESULTS = Path("docs/results/general")
+TRAVEL = {"train": {"travel_labels": True}}
+
+
+def main() -> None:
+    """Train and examine the travel-labelled reward on the build's tree, then SAC on it through the sweep."""
+    from drem_maniskill.pipeline.build_reward import build_reward
+    from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, merge
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", required=True)
+    p.add_argument("--seeds", nargs="*", type=int, default=[0, 1], help="state SAC seeds on the new reward")
+    p.add_argument("--steps", type=int, default=50_000)
+    p.add_argument("--out", default="outputs/general")
+    args = p.parse_args()
+    out, task = Path(args.out), args.task
+    work, build = out / "travel" / task, out / "build" / task
+    work.mkdir(parents=True, exist_ok=True)
+    for entry in ("expert", "tree.h5"):  # the build's demo and tree: only the training differs
+        if not (work / entry).exists():
+            os.symlink((build / entry).resolve(), work / entry, target_is_directory=(build / entry).is_dir())
+    checkpoint = build_reward(task, scale="full", out=work, recipe=merge(GENERAL_DEFAULTS, TRAVEL))
+    quality = json.loads((work / "quality.json").read_text())
+    dest = RESULTS / task / "travel"
+    dest.mkdir(parents=True, exist_ok=True)
+    summary = dict(task=task, recipe_changes=TRAVEL, tree=str(build.relative_to(out) / "tree.h5"),
+                   **examination_measures(quality))
+    (dest / "examination.json").write_text(json.dumps(summary, indent=1) + "\n")
+    print(json.dumps({k: summary[k] for k in ("value_order_spearman", "mouth_off_axis_over_on_axis")}), flush=True)
+    configs = drem_sac_configs([(task, checkpoint, work / "sac")], args.seeds, args.steps)
+    if configs:
+        from drem_maniskill.rl.sweep import run_sweep
+
+        run_sweep(configs, out)
+        for c in configs:
+            copy_run_files(Path(c.out), dest / "drem" / Path(c.out).name)
+
+
+if __name__ == "__main__":
+    main()
