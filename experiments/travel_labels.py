@@ -1,13 +1,13 @@
-"""The general recipe with travel labels on a finished general-recipe build, then state SAC on the reward it gives.
+"""The general recipe with travel labels, on a general-recipe build's tree, then state SAC on the reward it gives.
 
 The general recipe labels every child of a seed with the seed's depth plus one, however far its random action carried
-the part; with ``[train] travel_labels`` a child is labelled its seed's depth plus how far its action moved the hand,
-in the demo's median steps (``drem_maniskill.pipeline.dataset.travel_labels``), so that a part that wandered off the
-demo's path sits farther from the goal than one beside it. This trains that reward at the recipe's own scale on the
-demo and tree of ``experiments/general.py``'s build (``<out>/build/<task>``, linked: only the training differs), in
-``<out>/travel/<task>``, examines it, and trains state SAC on it through the sweep into ``<out>/travel/<task>/sac``.
-The examination's measures and each run's small files go to ``docs/results/general/<task>/travel/``. Rerunning the
-command resumes every stage.
+the part; with ``[train] travel_labels`` a child is labelled its seed's depth plus how far its action moved the hand, in
+the demo's median steps (``drem_maniskill.pipeline.dataset.travel_labels``), so that a part that wandered off the demo's
+path sits farther from the goal than one beside it. This trains that reward at the recipe's own scale on the demo and
+tree of ``experiments/general.py``'s build (``<out>/build/<task>``, linked: only the training differs; where there is
+none, recorded and sampled here as that build would), in ``<out>/travel/<task>``, examines it, and trains state SAC on
+it through the sweep into ``<out>/travel/<task>/sac``. The examination's measures and each run's small files go to
+``docs/results/general/<task>/travel/``. Rerunning the command resumes every stage.
 
     .venv/bin/python experiments/travel_labels.py --task SquarePegInHole-v1 --seeds 0 1
 """
@@ -40,13 +40,14 @@ def main() -> None:
     work, build = out / "travel" / task, out / "build" / task
     work.mkdir(parents=True, exist_ok=True)
     for entry in ("expert", "tree.h5"):  # the build's demo and tree: only the training differs
-        if not (work / entry).exists():
+        if not (work / entry).exists() and (build / entry).exists():
             os.symlink((build / entry).resolve(), work / entry, target_is_directory=(build / entry).is_dir())
     checkpoint = build_reward(task, scale="full", out=work, recipe=merge(GENERAL_DEFAULTS, TRAVEL))
     quality = json.loads((work / "quality.json").read_text())
     dest = RESULTS / task / "travel"
     dest.mkdir(parents=True, exist_ok=True)
-    summary = dict(task=task, recipe_changes=TRAVEL, tree=str(build.relative_to(out) / "tree.h5"),
+    tree = (work / "tree.h5").resolve()
+    summary = dict(task=task, recipe_changes=TRAVEL, tree=os.path.relpath(tree, out.resolve()),
                    **examination_measures(quality))
     (dest / "examination.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(json.dumps({k: summary[k] for k in ("value_order_spearman", "mouth_off_axis_over_on_axis")}), flush=True)
