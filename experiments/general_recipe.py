@@ -278,6 +278,18 @@ def drem_sac_configs(runs, seeds, steps: int) -> list:
             for task, checkpoint, folder in runs for seed in seeds]
 
 
+def sac_on_reward(task: str, checkpoint, folder: Path, seeds, steps: int, out: Path, dest: Path) -> None:
+    """State SAC on the reward ``checkpoint`` through the sweep (``drem_sac_configs``, runs in ``folder``, the sweep's
+    logs in ``out``), each run's small files then into ``dest/drem/seed<S>``."""
+    configs = drem_sac_configs([(task, checkpoint, folder)], seeds, steps)
+    if configs:
+        from drem_maniskill.rl.sweep import run_sweep
+
+        run_sweep(configs, out)
+        for c in configs:
+            copy_run_files(Path(c.out), dest / "drem" / Path(c.out).name)
+
+
 def copy_run_files(run: Path, dest: Path) -> None:
     """A run's small files (``RUN_FILES``) into ``dest``, for the docs."""
     import shutil

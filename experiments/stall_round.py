@@ -23,7 +23,7 @@ import os
 import shutil
 from pathlib import Path
 
-from general_recipe import copy_run_files, drem_sac_configs, examination_measures  # experiments/ is the folder
+from general_recipe import examination_measures, sac_on_reward  # experiments/ is the folder
 
 RESULTS = Path("docs/results/general")
 # What the round's SAC config may differ in from the run it takes: where it lives, what pays it (the same file,
@@ -111,13 +111,7 @@ def main() -> None:
                    round=header["rounds"][-1], **examination_measures(quality))
     (dest / "examination.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(json.dumps(summary["round"]), flush=True)
-    configs = drem_sac_configs([(task, checkpoint, work / "sac")], args.seeds, args.steps)
-    if configs:
-        from drem_maniskill.rl.sweep import run_sweep
-
-        run_sweep(configs, out)
-        for c in configs:
-            copy_run_files(Path(c.out), dest / "drem" / Path(c.out).name)
+    sac_on_reward(task, checkpoint, work / "sac", args.seeds, args.steps, out, dest)
 
 
 if __name__ == "__main__":
