@@ -1,14 +1,14 @@
 """Whether the tree makes the reward flat across a socket's mouth: the general recipe's action range against one expert
 step, and its depths against travel labels.
 
-Backward sampling labels every child of a seed with the seed's depth plus one, however far its random action moved
-it. Where the part moves freely (above the opening) the children of the general recipe's range (four times the
-expert's step, at least ``min_action_scale``) spread several millimetres around the demo's path, all at one depth, so
-the tree may itself teach that a part off the axis at the opening is as far along as one on it. This pilot builds the
-reward of ``task`` at a smaller scale of training (``ITERATIONS``) three ways: under the general recipe (its tree taken
-from the full build of ``experiments/general.py``, ``<out>/build/<task>``), with the range of one expert step
-(``NARROW``), and on the general tree with travel labels (``TRAVEL``: a child labelled by how far it moved from its
-seed, in the demo's steps), and reports for each the tree's spread at the opening (``tip_in_socket``, a measure the
+Backward sampling labels every child of a seed with the seed's depth plus one, however far its random action moved it.
+Where the part moves freely (above the opening) the children of the general recipe's range (four times the expert's
+step, at least ``min_action_scale``) spread several millimetres around the demo's path, all at one depth, so the tree
+may itself teach that a part off the axis at the opening is as far along as one on it. This pilot builds the reward of
+``task`` at a smaller scale of training (``ITERATIONS``) four ways: under the general recipe (its tree taken from the
+full build of ``experiments/general.py``, ``<out>/build/<task>``), with the range of one expert step (``NARROW``), and
+on the general tree with travel labels (``TRAVEL``, ``TRAVEL_2``: a child labelled by how far it moved from its seed,
+one or two labels a demo step), and reports for each the tree's spread at the opening (``tip_in_socket``, a measure the
 sampler never reads) and the examination's measures, ``mouth_off_axis_over_on_axis`` among them; beside them, how well
 each camera's image tells the offset at all (``offset_readout``). Written to
 ``docs/results/general/<task>/action_range_pilot.json``. ``--full`` adds the narrow range at the recipe's own 20,000
@@ -33,10 +33,13 @@ RESULTS = Path("docs/results/general")
 ITERATIONS = {"train": {"iterations": 5_000}}
 # One expert step (not four), and a floor of 1 % of the controller's translation limit (not 5 %).
 NARROW = {"sampler": {"expert_step_scale": 1.0, "min_action_scale": 0.01}}
-TRAVEL = {"train": {"travel_labels": True}}
+TRAVEL = {"train": {"travel_labels": 1.0}}
+# Two labels a demo step: a part 4 mm off the axis at the opening is then more than the loss's eps = 4 labels from one
+# on it (1.5 mm steps on the square peg's demo), where the near pairs' band no longer allows them the same distance.
+TRAVEL_2 = {"train": {"travel_labels": 2.0}}
 # Name -> (the recipe's changes, the build whose demo and tree it takes: None samples its own).
 PILOTS = {"general": ((ITERATIONS,), "build/{task}"), "narrow": ((NARROW, ITERATIONS), None),
-          "travel": ((TRAVEL, ITERATIONS), "build/{task}")}
+          "travel": ((TRAVEL, ITERATIONS), "build/{task}"), "travel_2": ((TRAVEL_2, ITERATIONS), "build/{task}")}
 FULL = {"narrow_20k": ((NARROW,), "action_range_pilot/{task}/narrow")}
 
 

@@ -7,7 +7,8 @@ path sits farther from the goal than one beside it. This trains that reward at t
 tree of ``experiments/general.py``'s build (``<out>/build/<task>``, linked: only the training differs; where there is
 none, recorded and sampled here as that build would), in ``<out>/travel/<task>``, examines it, and trains state SAC on
 it through the sweep into ``<out>/travel/<task>/sac``. The examination's measures and each run's small files go to
-``docs/results/general/<task>/travel/``. Rerunning the command resumes every stage.
+``docs/results/general/<task>/travel/``; ``--scale k`` (labels per demo step, 1 by default) works in ``travel_<k>``.
+Rerunning the command resumes every stage.
 
     .venv/bin/python experiments/travel_labels.py --task SquarePegInHole-v1 --seeds 0 1
 """
@@ -22,7 +23,6 @@ from pathlib import Path
 from general_recipe import examination_measures, sac_on_reward  # experiments/ is the folder
 
 RESULTS = Path("docs/results/general")
-TRAVEL = {"train": {"travel_labels": True}}
 
 
 def main() -> None:
@@ -34,20 +34,23 @@ def main() -> None:
     p.add_argument("--task", required=True)
     p.add_argument("--seeds", nargs="*", type=int, default=[0, 1], help="state SAC seeds on the new reward")
     p.add_argument("--steps", type=int, default=50_000)
+    p.add_argument("--scale", type=float, default=1.0, help="labels per demo median step of travel")
     p.add_argument("--out", default="outputs/general")
     args = p.parse_args()
     out, task = Path(args.out), args.task
-    work, build = out / "travel" / task, out / "build" / task
+    name = "travel" if args.scale == 1 else f"travel_{args.scale:g}"
+    travel = {"train": {"travel_labels": args.scale}}
+    work, build = out / name / task, out / "build" / task
     work.mkdir(parents=True, exist_ok=True)
     for entry in ("expert", "tree.h5"):  # the build's demo and tree: only the training differs
         if not (work / entry).exists() and (build / entry).exists():
             os.symlink((build / entry).resolve(), work / entry, target_is_directory=(build / entry).is_dir())
-    checkpoint = build_reward(task, scale="full", out=work, recipe=merge(GENERAL_DEFAULTS, TRAVEL))
+    checkpoint = build_reward(task, scale="full", out=work, recipe=merge(GENERAL_DEFAULTS, travel))
     quality = json.loads((work / "quality.json").read_text())
-    dest = RESULTS / task / "travel"
+    dest = RESULTS / task / name
     dest.mkdir(parents=True, exist_ok=True)
     tree = (work / "tree.h5").resolve()
-    summary = dict(task=task, recipe_changes=TRAVEL, tree=os.path.relpath(tree, out.resolve()),
+    summary = dict(task=task, recipe_changes=travel, tree=os.path.relpath(tree, out.resolve()),
                    **examination_measures(quality))
     (dest / "examination.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(json.dumps({k: summary[k] for k in ("value_order_spearman", "mouth_off_axis_over_on_axis")}), flush=True)

@@ -31,11 +31,11 @@ def dataset_modalities(path: str) -> tuple:
     return tuple(m for m in ("fixed", "wrist") if m in cams) + ft
 
 
-def travel_labels(f) -> np.ndarray:
-    """Temporal labels of an open tree's nodes in the demo's median steps: a seed at its depth, any other child at its
-    seed's depth plus how far its random action carried the hand from the seed (``ee_distance``, over the demo's median
-    step). The paper's depths give every child of a seed one label however far it moved; these keep the seeds' chain
-    and put a child that wandered far beside its seed farther from the goal than one that stayed near it."""
+def travel_labels(f, scale: float = 1.0) -> np.ndarray:
+    """Temporal labels of an open tree's nodes: a seed at its depth, any other child at its seed's depth plus ``scale``
+    labels per demo median step its random action carried the hand from the seed (``ee_distance``). The paper's depths
+    give every child of a seed one label however far it moved; these keep the seeds' chain and put a child that
+    wandered far beside its seed farther from the goal than one that stayed near it."""
     depth, parent = f["depth"][()].astype(np.float64), f["parent"][()]
     header = tree_file.read_header(f)
     rotation_weight = SamplerConfig.from_dict(header.get("config", {})).rotation_weight
@@ -46,15 +46,15 @@ def travel_labels(f) -> np.ndarray:
     tcp = f["tcp_pose"][()].astype(np.float64)
     child = ~f["is_seed"][()] & (parent >= 0)
     labels = depth.copy()
-    labels[child] = depth[parent[child]] + ee_distance(tcp[child], tcp[parent[child]], rotation_weight) / unit
+    labels[child] = depth[parent[child]] + scale * ee_distance(tcp[child], tcp[parent[child]], rotation_weight) / unit
     return labels
 
 
 class TreeDataset:
     """The progress tree in memory: uint8 images at the model's size, F/T, scene poses (when read), depths, and the
-    temporal labels the triplet loss reads (the depths, or ``travel_labels``)."""
+    temporal labels the triplet loss reads (the depths, or with ``travel > 0`` ``travel_labels`` at that scale)."""
 
-    def __init__(self, path: str, config: ModelConfig, travel: bool = False):
+    def __init__(self, path: str, config: ModelConfig, travel: float = 0.0):
         self.travel = travel
         with tree_file.open_tree(path) as f:
             self.header = tree_file.read_header(f)
@@ -112,8 +112,8 @@ class TreeDataset:
 
     def _labels(self, f) -> torch.Tensor:
         """The temporal labels of an open tree's (or negatives file's) nodes: travel labels for a tree when asked."""
-        if self.travel and "parent" in f:
-            return torch.as_tensor(travel_labels(f)).float()
+        if self.travel > 0 and "parent" in f:
+            return torch.as_tensor(travel_labels(f, self.travel)).float()
         return torch.as_tensor(f["depth"][()]).float()
 
     def _index_depths(self) -> None:

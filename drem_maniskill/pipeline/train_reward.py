@@ -48,9 +48,10 @@ class TrainConfig:
     """Bound of the triplet loss for neighbouring pairs: the later state may be closer to the goal by at most this."""
     alpha: float = 0.2
     """Weight of the reconstruction loss beside the triplet loss."""
-    travel_labels: bool = False
-    """The triplet loss reads each tree node's travel label (its seed's depth plus how far its random action moved the
-    hand, in the demo's median steps; ``dataset.travel_labels``) rather than its depth (beyond the paper)."""
+    travel_labels: float = 0.0
+    """When > 0, the triplet loss reads each tree node's travel label rather than its depth (beyond the paper): a child
+    is its seed's depth plus this many labels per demo median step its random action moved the hand
+    (``dataset.travel_labels``). 0: the paper's depths."""
     pairs_per_batch: int = 32
     """Pairs per iteration, half temporally neighbouring and half not."""
     seed: int = 0

@@ -134,8 +134,10 @@ def test_travel_labels_put_a_child_that_wandered_farther_than_one_beside_its_see
         f.attrs["header"] = json.dumps(dict(env_id="PegInHole-v1", config=dict(rotation_weight=0.05)))
     with h5py.File(tmp_path / "tree.h5", "r") as f:
         labels = travel_labels(f)
+        doubled = travel_labels(f, scale=2.0)
     # 0.1 rad at 0.05 m/rad is 5 mm of travel: 2.5 steps.
     assert np.allclose(labels, [0, 1, 1.0, 2.5, 4.0, 1.5])
+    assert np.allclose(doubled, [0, 1, 2.0, 5.0, 7.0, 2.0])
     with h5py.File(tmp_path / "still.h5", "w") as f:
         f["depth"], f["parent"], f["is_seed"] = np.array([0, 1]), np.array([-1, 0]), np.array([True, False])
         f["tcp_pose"], f["expert/tcp_pose"] = tcp[:2], np.array([tcp[0], tcp[0]])
@@ -157,7 +159,7 @@ def test_training_with_travel_labels_reads_them_and_resumes_only_under_them(pipe
 
     config = TrainConfig.preset("tiny")
     plain = TreeDataset(pipeline["tree"], config.model)
-    travel = TreeDataset(pipeline["tree"], config.model, travel=True)
+    travel = TreeDataset(pipeline["tree"], config.model, travel=1.0)
     assert torch.equal(plain.label, plain.depth.float())
     with h5py.File(pipeline["tree"], "r") as f:
         seeds = torch.as_tensor(f["is_seed"][()])
@@ -172,7 +174,7 @@ def test_training_with_travel_labels_reads_them_and_resumes_only_under_them(pipe
         return tr._resume(state_path, model, opt, gen, json.loads(json.dumps(asdict(cfg))), pipeline["tree"],
                           len(plain.depth))
 
-    travelled = TrainConfig.preset("tiny", travel_labels=True)
+    travelled = TrainConfig.preset("tiny", travel_labels=1.0)
     assert resumes_at(config) == config.iterations and resumes_at(travelled) == 0
     state = torch.load(state_path, weights_only=True)
     older = {k: v for k, v in json.loads(state["config"]).items() if k != "travel_labels"}
