@@ -36,6 +36,10 @@ def travel_labels(f, scale: float = 1.0) -> np.ndarray:
     labels per demo median step its random action carried the hand from the seed (``ee_distance``). The paper's depths
     give every child of a seed one label however far it moved; these keep the seeds' chain and put a child that
     wandered far beside its seed farther from the goal than one that stayed near it."""
+    missing = [k for k in ("parent", "is_seed", "tcp_pose", "expert/tcp_pose") if k not in f]
+    if missing:
+        raise ValueError(f"{f.filename} holds no {missing}, which travel labels read; {tree_file.RESAMPLE}, or train "
+                         "with travel_labels = 0")
     depth, parent = f["depth"][()].astype(np.float64), f["parent"][()]
     header = tree_file.read_header(f)
     rotation_weight = SamplerConfig.from_dict(header.get("config", {})).rotation_weight
@@ -110,9 +114,10 @@ class TreeDataset:
         self.tree_nodes = len(self.depth)
         self._index_depths()
 
-    def _labels(self, f) -> torch.Tensor:
-        """The temporal labels of an open tree's (or negatives file's) nodes: travel labels for a tree when asked."""
-        if self.travel > 0 and "parent" in f:
+    def _labels(self, f, tree: bool = True) -> torch.Tensor:
+        """The temporal labels of an open tree's (or, ``tree`` False, negatives file's) nodes: travel labels for a tree
+        when asked; a negative keeps the depth it was labelled."""
+        if self.travel > 0 and tree:
             return torch.as_tensor(travel_labels(f, self.travel)).float()
         return torch.as_tensor(f["depth"][()]).float()
 
@@ -132,13 +137,13 @@ class TreeDataset:
                 if header.get("camera_map", dict(CAMERA_OF)) != self.camera_map:
                     raise ValueError(f"{path} holds cameras {header.get('camera_map')}, the first tree "
                                      f"{self.camera_map}; sample every tree from the same demo file")
-                added += self._append(f, config)
+                added += self._append(f, config, tree=True)
         self.tree_nodes += added
         self._index_depths()
         return added
 
-    def _append(self, f, config: ModelConfig) -> int:
-        """Append the nodes of an open tree or negatives file; returns how many."""
+    def _append(self, f, config: ModelConfig, tree: bool) -> int:
+        """Append the nodes of an open tree (``tree``) or negatives file; returns how many."""
         depth = torch.as_tensor(f["depth"][()]).long()
         if len(depth) == 0:
             return 0
@@ -151,7 +156,7 @@ class TreeDataset:
                                  "re-collect it with this version")
             self.poses = torch.cat([self.poses, torch.as_tensor(f["poses"][()]).float()])
         self.depth = torch.cat([self.depth, depth])
-        self.label = torch.cat([self.label, self._labels(f)])
+        self.label = torch.cat([self.label, self._labels(f, tree)])
         return len(depth)
 
     def add_negatives(self, paths, config: ModelConfig) -> int:
@@ -160,7 +165,7 @@ class TreeDataset:
         added = 0
         for path in paths:
             with open_negatives(path, list(self.images)) as f:
-                added += self._append(f, config)
+                added += self._append(f, config, tree=False)
         self._index_depths()
         return added
 

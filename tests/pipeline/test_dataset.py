@@ -144,6 +144,10 @@ def test_travel_labels_put_a_child_that_wandered_farther_than_one_beside_its_see
         f.attrs["header"] = json.dumps(dict(env_id="PegInHole-v1"))
     with h5py.File(tmp_path / "still.h5", "r") as f, pytest.raises(ValueError, match="never moves"):
         travel_labels(f)
+    with h5py.File(tmp_path / "older.h5", "w") as f:  # a tree without its parent links
+        f["depth"], f["tcp_pose"], f["expert/tcp_pose"] = np.array([0, 1]), tcp[:2], demo
+    with h5py.File(tmp_path / "older.h5", "r") as f, pytest.raises(ValueError, match="parent.*re-sample"):
+        travel_labels(f)
 
 
 @pytest.mark.slow
