@@ -5,12 +5,12 @@ Backward sampling labels every child of a seed with the seed's depth plus one, h
 Where the part moves freely (above the opening) the children of the general recipe's range (four times the expert's
 step, at least ``min_action_scale``) spread several millimetres around the demo's path, all at one depth, so the tree
 may itself teach that a part off the axis at the opening is as far along as one on it. This pilot builds the reward of
-``task`` at a smaller scale of training (``ITERATIONS``) four ways: under the general recipe (its tree taken from the
+``task`` at a smaller scale of training (``ITERATIONS``) five ways: under the general recipe (its tree taken from the
 full build of ``experiments/general.py``, ``<out>/build/<task>``), with the range of one expert step (``NARROW``), and
-on the general tree with travel labels (``TRAVEL``, ``TRAVEL_2``: a child labelled by how far it moved from its seed,
-one or two labels a demo step), and reports for each the tree's spread at the opening (``tip_in_socket``, a measure the
-sampler never reads) and the examination's measures, ``mouth_off_axis_over_on_axis`` among them; beside them, how well
-each camera's image tells the offset at all (``offset_readout``). Written to
+on the general tree with travel labels (``TRAVEL``, ``TRAVEL_2``, ``TRAVEL_2_HALF_MARGIN``: a child labelled by how far
+it moved from its seed, one or two labels a demo step), and reports for each the tree's spread at the opening
+(``tip_in_socket``, a measure the sampler never reads) and the examination's measures, ``mouth_off_axis_over_on_axis``
+among them; beside them, how well each camera's image tells the offset at all (``offset_readout``). Written to
 ``docs/results/general/<task>/action_range_pilot.json``. ``--full`` adds the narrow range at the recipe's own 20,000
 iterations (travel labels at that scale, with SAC on them: ``experiments/travel_labels.py``); ``--only`` builds the
 named ones (the rest are read where built). Rerunning resumes every build.
@@ -37,9 +37,13 @@ TRAVEL = {"train": {"travel_labels": 1.0}}
 # Two labels a demo step: a part 4 mm off the axis at the opening is then more than the loss's eps = 4 labels from one
 # on it (1.5 mm steps on the square peg's demo), where the near pairs' band no longer allows them the same distance.
 TRAVEL_2 = {"train": {"travel_labels": 2.0}}
+# The same labels with half the far pairs' margin a label, so that no margin asks more than the cosine distance's range
+# of 2 (labels reach about 80 on the square peg's tree): for far pairs, one label a step with eps = 2.
+TRAVEL_2_HALF_MARGIN = {"train": {"travel_labels": 2.0, "beta1": 0.02}}
 # Name -> (the recipe's changes, the build whose demo and tree it takes: None samples its own).
 PILOTS = {"general": ((ITERATIONS,), "build/{task}"), "narrow": ((NARROW, ITERATIONS), None),
-          "travel": ((TRAVEL, ITERATIONS), "build/{task}"), "travel_2": ((TRAVEL_2, ITERATIONS), "build/{task}")}
+          "travel": ((TRAVEL, ITERATIONS), "build/{task}"), "travel_2": ((TRAVEL_2, ITERATIONS), "build/{task}"),
+          "travel_2_half_margin": ((TRAVEL_2_HALF_MARGIN, ITERATIONS), "build/{task}")}
 FULL = {"narrow_20k": ((NARROW,), "action_range_pilot/{task}/narrow")}
 
 
