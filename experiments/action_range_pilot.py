@@ -22,12 +22,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 import h5py
 import numpy as np
-from general_recipe import examination_measures  # experiments/ is the script's folder
+from general_recipe import examination_measures, link_demo_and_tree  # experiments/ is the script's folder
 
 RESULTS = Path("docs/results/general")
 ITERATIONS = {"train": {"iterations": 5_000}}
@@ -129,10 +128,11 @@ def main() -> None:
                 summary[name] = _measures(parts, tree_from, work)
             continue
         work.mkdir(parents=True, exist_ok=True)
-        for entry in ("expert", "tree.h5") if tree_from else ():  # the same demo and tree: only the training differs
-            if not (work / entry).exists():
-                src = out / tree_from.format(task=task) / entry
-                os.symlink(src.resolve(), work / entry, target_is_directory=src.is_dir())
+        if tree_from:
+            source = out / tree_from.format(task=task)
+            if not (source / "tree.h5").exists():
+                raise SystemExit(f"{name} trains on the tree in {source}, which has none: build it first")
+            link_demo_and_tree(source, work)
         build_reward(task, scale="full", out=work, recipe=recipe)
         summary[name] = _measures(parts, tree_from, work)
         print(name, json.dumps({k: summary[name][k] for k in ("value_order_spearman", "mouth_off_axis_over_on_axis")}),

@@ -188,6 +188,17 @@ def reuse_trees(work: Path, source, with_reward: bool, grow: bool = False) -> No
         shutil.copyfile(tree, work / (f"{tree.name}.partial" if grow else tree.name))
 
 
+def link_demo_and_tree(build: Path, work: Path) -> None:
+    """``build``'s demo and tree in ``work`` as symlinks, where ``work`` has none and ``build`` has them: a variant that
+    differs only in its training (its demo and sampling stages are then skipped)."""
+    import os
+
+    for entry in ("expert", "tree.h5"):
+        src, dest = build / entry, work / entry
+        if not dest.exists() and src.exists():
+            os.symlink(src.resolve(), dest, target_is_directory=src.is_dir())
+
+
 def add_build_time(work: Path, seconds: float) -> float:
     """Seconds spent building ``work`` over every invocation, so a resumed build reports what it did before too."""
     path = work / "build_seconds.json"

@@ -20,7 +20,7 @@ import json
 import os
 from pathlib import Path
 
-from general_recipe import examination_measures, sac_on_reward  # experiments/ is the folder
+from general_recipe import examination_measures, link_demo_and_tree, sac_on_reward  # experiments/ is the folder
 
 RESULTS = Path("docs/results/general")
 
@@ -42,9 +42,7 @@ def main() -> None:
     travel = {"train": {"travel_labels": args.scale}}
     work, build = out / name / task, out / "build" / task
     work.mkdir(parents=True, exist_ok=True)
-    for entry in ("expert", "tree.h5"):  # the build's demo and tree: only the training differs
-        if not (work / entry).exists() and (build / entry).exists():
-            os.symlink((build / entry).resolve(), work / entry, target_is_directory=(build / entry).is_dir())
+    link_demo_and_tree(build, work)
     checkpoint = build_reward(task, scale="full", out=work, recipe=merge(GENERAL_DEFAULTS, travel))
     quality = json.loads((work / "quality.json").read_text())
     dest = RESULTS / task / name

@@ -46,7 +46,7 @@ def travel_labels(f, scale: float = 1.0) -> np.ndarray:
     unit = median_step(f["expert/tcp_pose"][()].astype(np.float64), rotation_weight)
     if unit <= 0:
         raise ValueError(f"{f.filename}: the demo's hand never moves, so travel labels have no unit; train with "
-                         "travel_labels off")
+                         "travel_labels = 0")
     tcp = f["tcp_pose"][()].astype(np.float64)
     child = ~f["is_seed"][()] & (parent >= 0)
     labels = depth.copy()

@@ -275,6 +275,12 @@ def export_reward(model: DREMModel, data: TreeDataset, config: TrainConfig, path
     return save_checkpoint(str(path), header, weights)
 
 
+def with_defaults(saved: dict) -> dict:
+    """A saved ``TrainConfig``'s JSON (a training state's, a checkpoint header's ``train``) with every setting it
+    predates at its default: what it trained with."""
+    return {**json.loads(json.dumps(asdict(TrainConfig()))), **saved}
+
+
 def _resumable(config_json: dict) -> dict:
     """The config keys that must match to resume (more iterations or other logging are fine)."""
     free = ("iterations", "save_every", "log_every", "threads", "device")
@@ -288,9 +294,7 @@ def _resume(state_path: Path, model, opt, gen, config_json: dict, dataset_path: 
     state = torch.load(state_path, map_location="cpu", weights_only=True)
     # The same file with other contents (a re-sampled tree) starts over rather than training on a mix.
     same_data = state["dataset"] == str(Path(dataset_path).resolve()) and state.get("nodes", nodes) == nodes
-    # A setting the saved run predates counts at its default: that is what it trained with.
-    saved = {**json.loads(json.dumps(asdict(TrainConfig()))), **json.loads(state["config"])}
-    if _resumable(saved) != _resumable(config_json) or not same_data:
+    if _resumable(with_defaults(json.loads(state["config"]))) != _resumable(config_json) or not same_data:
         return 0
     model.load_state_dict(state["model"])
     opt.load_state_dict(_unflatten_opt(state["opt"]))
