@@ -1,13 +1,13 @@
-"""How long a new process takes to its first camera picture of our task, with and without SAPIEN's BRDF table.
+"""How long a new process takes to its first camera picture of a task, with and without SAPIEN's BRDF table.
 
 SAPIEN computes a BRDF lookup table with a compute shader the first time a process renders; on the CPU
-(lavapipe) that is most of the time to a first picture. Our tasks give their cameras a blank table instead
-(``drem_maniskill/envs/rendering.py``: a scene without an environment map renders the same images with it).
-Every CLI command, SAC run, sampler and evaluation process starts through this.
+(lavapipe) that is most of the time to a first picture. Once ``drem_maniskill`` is imported, every ManiSkill env's
+cameras get a blank table instead (``drem_maniskill/envs/rendering.py``: a scene without an environment map renders
+the same images with it). Every CLI command, SAC run, sampler and evaluation process starts through this.
 
-One run: ``gym.make("PegInHole-v1", obs_mode="rgb")`` (which resets, taking the first pictures), one more
-observation, exit. ``--sapiens-table`` leaves SAPIEN's table in place. Compare them side by side in one call
-(whole processes, paired runs, median ratio)::
+One run: ``gym.make(TASK, obs_mode="rgb")`` (``--task``, PegInHole-v1 by default; it resets, taking the first
+pictures), one more observation, exit. ``--sapiens-table`` leaves SAPIEN's table in place. Compare them side by
+side in one call (whole processes, paired runs, median ratio)::
 
     farm-bench -n 5 --timeout 600 --vs ".venv/bin/python bench/first_picture.py --sapiens-table" \\
         -- .venv/bin/python bench/first_picture.py
@@ -30,15 +30,15 @@ def main(argv=None) -> None:
     parser.add_argument("--task", default="PegInHole-v1")
     args = parser.parse_args(argv)
 
-    from drem_maniskill.envs import insertion_base
+    from drem_maniskill.envs import rendering
 
     if args.sapiens_table:
-        insertion_base.skip_brdf_lut = lambda scene, cameras: 0
+        rendering.skip_brdf_lut = lambda scene, cameras: 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         env = gym.make(args.task, obs_mode="rgb")
     obs = env.unwrapped.get_obs()
-    print(float(obs["sensor_data"]["fixed_camera"]["rgb"].float().mean()))
+    print(float(next(iter(obs["sensor_data"].values()))["rgb"].float().mean()))
     env.close()
 
 

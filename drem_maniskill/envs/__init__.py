@@ -16,6 +16,10 @@ from mani_skill.utils.registration import REGISTERED_ENVS
 from drem_maniskill.envs.agent import PandaInsertion
 from drem_maniskill.envs.aliases import drem_env_id, register_drem_env, register_task_aliases
 from drem_maniskill.envs.insertion_base import InsertionEnv
+from drem_maniskill.envs.rendering import install as _install_blank_brdf_lut
+
+# Every ManiSkill env made in this process skips SAPIEN's BRDF table where it cannot change a pixel (envs.rendering).
+_install_blank_brdf_lut()
 
 # The one task list: env id -> the module of its task file in this folder (which registers the
 # task with ManiSkill's @register_env).

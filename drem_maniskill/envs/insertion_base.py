@@ -40,7 +40,6 @@ from drem_maniskill.envs.ft_sensor import WristFTSensor
 from drem_maniskill.envs.geometry import y_rotation
 from drem_maniskill.envs.insertion_rewards import InsertionRewards
 from drem_maniskill.envs.placement import SocketPlacement, yaw_quat
-from drem_maniskill.envs.rendering import skip_brdf_lut
 from drem_maniskill.envs.task_state import TaskState
 
 RENDER_STYLES = ("lean", "full")
@@ -184,11 +183,6 @@ class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState,
         target = [self.socket_center[0], self.socket_center[1], self.socket_height + 0.05]
         pose = sapien_utils.look_at([target[0] + 0.45, target[1] - 0.5, target[2] + 0.4], target)
         return CameraConfig("render_camera", pose, 384, 384, np.deg2rad(50), 0.01, 10)
-
-    def _setup_sensors(self, options: dict):
-        super()._setup_sensors(options)
-        # The scene has no environment map: the first picture need not compute SAPIEN's BRDF table (envs.rendering).
-        skip_brdf_lut(self.scene, {**self._sensors, **self._human_render_cameras})
 
     # ------------------------------------------------------------------ scene
     def _load_agent(self, options: dict):

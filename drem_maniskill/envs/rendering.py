@@ -6,9 +6,15 @@ about 12 s of CPU in every process that renders, longer than most of what follow
 environment map's colour (``color * (fresnel * lut.x + lut.y)``), and a scene without an environment map samples
 SAPIEN's black default cubemap, so there the term is zero whatever the table holds: a blank table gives the same
 images bit for bit (``tests/envs/test_rendering.py``) without the computation.
+
+``install()`` (run when ``drem_maniskill.envs`` is imported) hooks this into ManiSkill's ``BaseEnv._setup_sensors``,
+so every ManiSkill env made in the process, ManiSkill's own tasks (PushCube-v1, PlugCharger-v1, ...) as well as ours,
+takes the blank table when its scene has no environment map; a scene with one keeps SAPIEN's table.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import sapien
@@ -34,3 +40,22 @@ def skip_brdf_lut(scene, cameras: dict) -> int:
     for camera in targets:
         camera.set_texture("BRDFLUT", blank)
     return len(targets)
+
+
+def install() -> bool:
+    """Hook ``skip_brdf_lut`` into every ManiSkill env's sensor set-up (once a process); True when this call did."""
+    from mani_skill.envs.sapien_env import BaseEnv
+
+    original = BaseEnv._setup_sensors
+    if getattr(original, "blank_brdf_lut", False):
+        return False
+
+    @functools.wraps(original)
+    def _setup_sensors(self, options: dict):
+        original(self, options)
+        # After ManiSkill made the cameras and before the reset takes their first pictures.
+        skip_brdf_lut(self.scene, {**self._sensors, **self._human_render_cameras})
+
+    _setup_sensors.blank_brdf_lut = True
+    BaseEnv._setup_sensors = _setup_sensors
+    return True
