@@ -210,7 +210,14 @@ def test_a_missing_checkpoint_error_names_the_fix(tmp_path):
 
 
 @pytest.mark.slow
-def test_chain_record_sample_train_examine(tmp_path):
+def test_chain_record_sample_train_examine(tmp_path, capsys):
+    """The commands one after another, in this process (the console script itself: test_help_of_every_subcommand)."""
+    from drem_maniskill.cli import main
+
+    def run(*args) -> str:
+        assert main(list(args)) == 0
+        return capsys.readouterr().out
+
     run("record-expert", "--task", "USBInsertion-v1", "--seed", "1000", "--out", str(tmp_path / "expert"))
     expert = tmp_path / "expert" / "expert.h5"
     assert json.loads((tmp_path / "expert" / "expert.json").read_text())["env_info"]["env_id"] == "USBInsertion-v1"

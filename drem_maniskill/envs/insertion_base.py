@@ -327,10 +327,15 @@ class InsertionEnv(InsertionRewards, DREMRewardMode, SocketPlacement, TaskState,
 
     def _opening_in_socket_actor(self, count: int) -> Pose:
         """The socket frame (centre of the opening on its top face, axis z) in the socket actor's, ``count`` times."""
-        opening = self._block_in_socket_actor() * sapien.Pose([0, 0, self.socket_height])
-        p = torch.tensor([list(opening.p)], dtype=torch.float32, device=self.device).repeat(count, 1)
-        q = torch.tensor([list(opening.q)], dtype=torch.float32, device=self.device).repeat(count, 1)
-        return Pose.create_from_pq(p, q)
+        # Read at every step by the success test and the rewards: built once per shape and kept (two thirds of the
+        # socket frame's cost was building these tensors).
+        key = (count, self.socket_lift, self.socket_tilt, self.socket_height, str(self.device))
+        cached = self.__dict__.get("_opening_in_actor")
+        if cached is None or cached[0] != key:
+            opening = self._block_in_socket_actor() * sapien.Pose([0, 0, self.socket_height])
+            pq = torch.tensor([[*opening.p, *opening.q]], dtype=torch.float32, device=self.device).repeat(count, 1)
+            cached = self._opening_in_actor = (key, pq)
+        return Pose.create(cached[1])
 
     def opening_pose(self) -> Pose:
         """World pose ``[num_envs]`` of the socket frame: the centre of the opening on its top face, the axis z."""
