@@ -153,6 +153,23 @@ def symmetric_turn(env, turn: tuple) -> tuple:
     return (turn[0], turn[1], float(np.clip(turn[2], -limit, limit)))
 
 
+def end_reward(env, policy: Callable, seed: int, steps: Optional[int] = None) -> tuple:
+    """``(the DREM reward where an episode of policy ends, the episode)``; ``env``: our task in the ``drem`` mode.
+
+    The episode runs in the ``none`` reward mode and the reward is read once, at its end: a step's reward renders
+    the cameras, and only the last one is read. The same number as the episode's last reward (the F/T history and
+    the state do not depend on the reward mode).
+    """
+    u = env.unwrapped
+    mode = u.reward_mode
+    u._reward_mode = "none"
+    try:
+        ep = rollout(env, policy, int(seed), steps, stop_on_success=False)
+    finally:
+        u._reward_mode = mode
+    return float(u.compute_drem_reward(obs=ep.obs, action=None, info=ep.info).reshape(-1)[0]), ep
+
+
 def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS,
                    vias: dict | None = None, turns: dict | None = None) -> dict:
     """The reward with the tip held at each of ``positions`` (and the expert's insertion), per seed.
@@ -167,17 +184,16 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
             turn = (turns or {}).get(name)
             policy = HoldPolicy(env, target, via=(vias or {}).get(name), turn=turn)
             hold_steps = steps if turn is None else max(steps, TURN_STEPS)
-            ep = rollout(env, policy, int(seed), hold_steps, stop_on_success=False)
-            rewards.append(ep.rewards[-1])
+            rewards.append(end_reward(env, policy, seed, hold_steps)[0])
             reached = env.unwrapped.tip_pose_in_socket().p[0].cpu().numpy()
             errors.append(float(np.linalg.norm(reached - np.asarray(target)) * 1000))
         out[name] = dict(rewards=rewards, mean=float(np.mean(rewards)), std=float(np.std(rewards)),
                          reached_error_mm=float(np.mean(errors)))
     rewards = []
     for seed in seeds:
-        ep = rollout(env, get_policy("expert", env, seed=int(seed)), int(seed), stop_on_success=False)
+        reward, ep = end_reward(env, get_policy("expert", env, seed=int(seed)), seed)
         if ep.success:
-            rewards.append(ep.rewards[-1])
+            rewards.append(reward)
     out["inserted"] = dict(rewards=rewards, mean=float(np.mean(rewards)) if rewards else None,
                            std=float(np.std(rewards)) if rewards else None, reached_error_mm=None)
     return out
