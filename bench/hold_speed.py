@@ -21,7 +21,7 @@ import gymnasium as gym
 
 import drem_maniskill  # noqa: F401
 from drem_maniskill.evaluate.probes import (
-    HOLD_STEPS, PROBES, TURN_STEPS, end_reward, hold_targets, hold_turns, hold_vias,
+    HOLD_STEPS, PROBES, end_reward, hold_length, hold_targets, hold_turns, hold_vias,
 )
 from drem_maniskill.experts import rollout
 from drem_maniskill.experts.scripted import HoldPolicy
@@ -43,7 +43,7 @@ def main(argv=None) -> dict:
         end_reward(env, HoldPolicy(env, targets[PROBES[0].name]), args.seeds[0], HOLD_STEPS)  # the first pictures
         for probe in PROBES:
             for seed in args.seeds:
-                steps = HOLD_STEPS if probe.name not in turns else max(HOLD_STEPS, TURN_STEPS)
+                steps = hold_length(turns.get(probe.name))
 
                 def policy():
                     return HoldPolicy(env, targets[probe.name], via=vias.get(probe.name), turn=turns.get(probe.name))

@@ -214,21 +214,21 @@ def test_chain_record_sample_train_examine(tmp_path, capsys):
     """The commands one after another, in this process (the console script itself: test_help_of_every_subcommand)."""
     from drem_maniskill.cli import main
 
-    def run(*args) -> str:
+    def here(*args) -> str:
         assert main(list(args)) == 0
         return capsys.readouterr().out
 
-    run("record-expert", "--task", "USBInsertion-v1", "--seed", "1000", "--out", str(tmp_path / "expert"))
+    here("record-expert", "--task", "USBInsertion-v1", "--seed", "1000", "--out", str(tmp_path / "expert"))
     expert = tmp_path / "expert" / "expert.h5"
     assert json.loads((tmp_path / "expert" / "expert.json").read_text())["env_info"]["env_id"] == "USBInsertion-v1"
-    out = run("sample", "--expert", str(expert), "--out", str(tmp_path / "tree.h5"), "--preset", "tiny")
+    out = here("sample", "--expert", str(expert), "--out", str(tmp_path / "tree.h5"), "--preset", "tiny")
     assert "progress tree:" in out
     with h5py.File(tmp_path / "tree.h5", "r") as f:
         assert f["in_start_region"][()].any()
-    out = run("train-reward", "--dataset", str(tmp_path / "tree.h5"), "--out", str(tmp_path / "reward"),
+    out = here("train-reward", "--dataset", str(tmp_path / "tree.h5"), "--out", str(tmp_path / "reward"),
               "--preset", "tiny")
     assert (tmp_path / "reward" / "drem.pt").exists()
-    out = run("examine", "--task", "USBInsertion-v1", "--checkpoint", str(tmp_path / "reward" / "drem.pt"),
+    out = here("examine", "--task", "USBInsertion-v1", "--checkpoint", str(tmp_path / "reward" / "drem.pt"),
               "--out", str(tmp_path / "exam"), "--episodes", "1")
     quality = json.loads((tmp_path / "exam" / "quality.json").read_text())
     assert set(quality["curves"]) == {"direct_success", "align_success", "search_fail", "random"}

@@ -153,6 +153,11 @@ def symmetric_turn(env, turn: tuple) -> tuple:
     return (turn[0], turn[1], float(np.clip(turn[2], -limit, limit)))
 
 
+def hold_length(turn: Optional[tuple], steps: int = HOLD_STEPS) -> int:
+    """Steps a hold runs: ``steps``, and at least ``TURN_STEPS`` for a hold that turns the part (``turn`` not None)."""
+    return steps if turn is None else max(steps, TURN_STEPS)
+
+
 def end_reward(env, policy: Callable, seed: int, steps: Optional[int] = None) -> tuple:
     """``(the DREM reward where an episode of policy ends, the episode)``; ``env``: our task in the ``drem`` mode.
 
@@ -183,8 +188,7 @@ def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, 
         for seed in seeds:
             turn = (turns or {}).get(name)
             policy = HoldPolicy(env, target, via=(vias or {}).get(name), turn=turn)
-            hold_steps = steps if turn is None else max(steps, TURN_STEPS)
-            rewards.append(end_reward(env, policy, seed, hold_steps)[0])
+            rewards.append(end_reward(env, policy, seed, hold_length(turn, steps))[0])
             reached = env.unwrapped.tip_pose_in_socket().p[0].cpu().numpy()
             errors.append(float(np.linalg.norm(reached - np.asarray(target)) * 1000))
         out[name] = dict(rewards=rewards, mean=float(np.mean(rewards)), std=float(np.std(rewards)),
