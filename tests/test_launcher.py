@@ -83,7 +83,7 @@ def test_run_module_runs_a_module_as_main(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.slow
-def test_launcher_runs_a_script_that_knows_only_maniskill(tmp_path):
+def test_launcher_runs_a_script_that_knows_only_maniskill(tmp_path, capsys):
     script = tmp_path / "stand_in.py"
     script.write_text(STAND_IN)
     plain = subprocess.run([sys.executable, str(script), "--env_id", "PegInHole-DREM-v1"],
@@ -99,5 +99,4 @@ def test_launcher_runs_a_script_that_knows_only_maniskill(tmp_path):
     direct = subprocess.run([sys.executable, str(script), "--env_id", "drem_maniskill:USBInsertion-DREM-v1"],
                             capture_output=True, text=True, timeout=300)
     assert direct.returncode == 0 and "reward_mode=drem" in direct.stdout, direct.stderr[-2000:]
-    missing = subprocess.run([str(BIN), "run-script", str(tmp_path / "nope.py")], capture_output=True, text=True)
-    assert missing.returncode == 2 and "nope.py not found" in missing.stderr
+    assert main(["run-script", str(tmp_path / "nope.py")]) == 2 and "nope.py not found" in capsys.readouterr().err

@@ -31,7 +31,9 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 import torch
 
+from drem_maniskill.drem.wrapper import drem_source
 from drem_maniskill.envs import check_env_id
+from drem_maniskill.evaluate.probes import end_reward
 from drem_maniskill.experts import get_policy, rollout
 from drem_maniskill.rl.config import RLConfig
 from drem_maniskill.utils.atomic import write_json
@@ -157,7 +159,11 @@ def _compared_end(ep, last: int) -> dict:
 
 def expert_ends(run: RLConfig, seeds: Sequence[int], compare: Optional[str] = None) -> Optional[dict]:
     """The scripted expert on ``seeds`` under the reward: ``R`` at its end and its objects there (and what the
-    ``compare`` checkpoint pays there); None without one."""
+    ``compare`` checkpoint pays there); None without one.
+
+    Under a DREM reward the episode's steps skip it and ``R`` is read once, at the end (``probes.end_reward``): a
+    step's reward renders the cameras, and only the last one is read.
+    """
     from drem_maniskill.rl.run_env import make_eval_env
 
     env = make_eval_env(dataclasses.replace(run, action_scale=1.0, drem_form="paper"))
@@ -167,11 +173,17 @@ def expert_ends(run: RLConfig, seeds: Sequence[int], compare: Optional[str] = No
         except ValueError:
             return None
         measure = compared_reward(compare, env)
+        horizon = max_episode_steps(run.task)
         ends = {}
         for seed in seeds:
-            ep = rollout(env, expert, int(seed), max_episode_steps(run.task), stop_on_success=True, measure=measure)
-            ends[int(seed)] = dict(success=bool(ep.success), end_reward=float(ep.rewards[-1]),
-                                   objects=moving_objects(env), **_compared_end(ep, 1))
+            if drem_source(env) is not None:
+                end, ep = end_reward(env, expert, int(seed), horizon, stop_on_success=True)
+            else:
+                ep = rollout(env, expert, int(seed), horizon, stop_on_success=True)
+                end = ep.rewards[-1]
+            compared = measure(env, None, None, None)["compare_reward"] if measure else None
+            ends[int(seed)] = dict(success=bool(ep.success), end_reward=float(end), objects=moving_objects(env),
+                                   **({} if compared is None else {"compare_end_reward": compared}))
         return ends
     finally:
         env.close()

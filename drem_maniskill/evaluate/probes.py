@@ -14,6 +14,7 @@ from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 
+from drem_maniskill.drem.wrapper import reward_read_at_end
 from drem_maniskill.envs.adapter import SocketGeometry
 from drem_maniskill.experts import get_policy, rollout
 from drem_maniskill.experts.scripted import PRESS_DEPTH, HoldPolicy
@@ -158,21 +159,15 @@ def hold_length(turn: Optional[tuple], steps: int = HOLD_STEPS) -> int:
     return steps if turn is None else max(steps, TURN_STEPS)
 
 
-def end_reward(env, policy: Callable, seed: int, steps: Optional[int] = None) -> tuple:
-    """``(the DREM reward where an episode of policy ends, the episode)``; ``env``: our task in the ``drem`` mode.
+def end_reward(env, policy: Callable, seed: int, steps: Optional[int] = None, stop_on_success: bool = False) -> tuple:
+    """``(the DREM reward where an episode of policy ends, the episode)``; ``env``: paid by a DREM reward.
 
-    The episode runs in the ``none`` reward mode and the reward is read once, at its end: a step's reward renders
-    the cameras, and only the last one is read. The same number as the episode's last reward (the F/T history and
-    the state do not depend on the reward mode).
+    The episode's steps skip the reward and it is read once, at the end (``drem.wrapper.reward_read_at_end``): a
+    step's reward renders the cameras, and only the last one is read. The same number as the episode's last reward.
     """
-    u = env.unwrapped
-    mode = u.reward_mode
-    u._reward_mode = "none"
-    try:
-        ep = rollout(env, policy, int(seed), steps, stop_on_success=False)
-    finally:
-        u._reward_mode = mode
-    return float(u.compute_drem_reward(obs=ep.obs, action=None, info=ep.info).reshape(-1)[0]), ep
+    with reward_read_at_end(env) as read:
+        ep = rollout(env, policy, int(seed), steps, stop_on_success=stop_on_success)
+        return float(read().reshape(-1)[0]), ep
 
 
 def hold_positions(env, seeds: Sequence[int], positions: dict = HOLD_POSITIONS, steps: int = HOLD_STEPS,

@@ -54,6 +54,14 @@ def tiny(tmp_path_factory):
     return tree, config, checkpoint
 
 
+@pytest.fixture(scope="module")
+def stalls_round(tiny, tmp_path_factory):
+    """``(its folder, its last checkpoint)``: one round of ``STALLS`` on the tiny reward, run once for the module."""
+    tree, config, checkpoint = tiny
+    out = tmp_path_factory.mktemp("stalls_round")
+    return out, run_rounds("PegInHole-v1", tree, checkpoint, config, STALLS, out)
+
+
 def _rewards(checkpoint, negatives: Path) -> torch.Tensor:
     from drem_maniskill.drem.reward import DREMReward
 
@@ -65,14 +73,14 @@ def _rewards(checkpoint, negatives: Path) -> torch.Tensor:
 
 
 @pytest.mark.slow
-def test_a_round_adds_the_over_paid_and_stalled_states_of_failed_episodes_and_pays_them_less(tiny, tmp_path):
+def test_a_round_adds_the_over_paid_and_stalled_states_of_failed_episodes_and_pays_them_less(tiny, stalls_round):
     tree, config, checkpoint = tiny
-    last = run_rounds("PegInHole-v1", tree, checkpoint, config, STALLS, tmp_path)
+    out, last = stalls_round
     header, _ = load_checkpoint(str(last))
     (record,) = header["rounds"]
     assert record["round"] == 1 and record["negative_depth"] == 30 and record["sac_steps"] == 300
     assert record["episodes"] == 2 and record["failed"] == 2  # 300 steps teach no insertion
-    negatives = tmp_path / "round_1" / "negatives.h5"
+    negatives = out / "round_1" / "negatives.h5"
     with h5py.File(negatives, "r") as f:
         depth, paid, step = f["depth"][()], f["reward"][()], f["step"][()]
         assert len(depth) == record["negatives"] > 0
@@ -109,14 +117,13 @@ def test_an_episode_stalled_where_its_reward_stopped_rising_and_is_labelled_beyo
 
 
 @pytest.mark.slow
-def test_a_round_killed_while_fine_tuning_and_rerun_ends_with_the_same_checkpoint(tiny, tmp_path):
+def test_a_round_killed_while_fine_tuning_and_rerun_ends_with_the_same_checkpoint(tiny, stalls_round, tmp_path):
     tree, config, checkpoint = tiny
-    first = tmp_path / "first"
-    last = run_rounds("PegInHole-v1", tree, checkpoint, config, ROUNDS, first)
+    first, last = stalls_round
     # The same round again from its finished SAC run and negatives, killed at its first training checkpoint.
     second = tmp_path / "second"
     shutil.copytree(first, second, ignore=shutil.ignore_patterns("train"))
-    args = json.dumps(dict(tree=tree, checkpoint=str(checkpoint), out=str(second), rounds=dataclasses.asdict(ROUNDS),
+    args = json.dumps(dict(tree=tree, checkpoint=str(checkpoint), out=str(second), rounds=dataclasses.asdict(STALLS),
                            train={**dataclasses.asdict(config), "model": config.model.to_dict()}))
     state = second / "round_1" / "train" / "train_state.pt"
     proc = subprocess.Popen([sys.executable, "-c", SCRIPT, args], start_new_session=True,
@@ -127,7 +134,7 @@ def test_a_round_killed_while_fine_tuning_and_rerun_ends_with_the_same_checkpoin
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     assert state.exists() and not (second / "round_1" / "train" / "drem.pt").exists()
-    assert torch.load(state, weights_only=True)["step"] < ROUNDS.iterations
+    assert torch.load(state, weights_only=True)["step"] < STALLS.iterations
     done = subprocess.run([sys.executable, "-c", SCRIPT, args], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     again = Path(done.stdout.strip().splitlines()[-1])
