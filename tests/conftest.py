@@ -24,6 +24,10 @@ SHIPPED_TASKS = tuple(task for task in TASKS if default_checkpoint(task).is_file
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     torch.set_num_threads(1)  # one xdist worker per core: two torch threads each would oversubscribe it
+    # The processes a test starts (CLI commands, the wheel's demo, resumed runs) run on their worker's core too, while
+    # it waits on them: one thread each, and OpenMP threads that sleep rather than spin when idle.
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 def make_env(task: str, **kwargs):

@@ -71,14 +71,11 @@ def test_shipped_stock_checkpoint_rises_along_an_expert_episode(env_id):
         env.close()
 
 
-def test_scripted_success_command_on_a_stock_task():
+def test_scripted_success_command_on_a_stock_task(capsys):
     """`drem-maniskill scripted-success` picks the end-effector controller the stock expert needs."""
-    import subprocess
-    import sys
+    from drem_maniskill.cli import main
 
-    proc = subprocess.run([sys.executable, "-m", "drem_maniskill.cli", "scripted-success",
-                           "--task", "PegInsertionSide-v1", "--episodes", "2"],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    result = json.loads(proc.stdout[proc.stdout.index("{"):])
+    assert main(["scripted-success", "--task", "PegInsertionSide-v1", "--episodes", "2"]) == 0
+    out = capsys.readouterr().out
+    result = json.loads(out[out.index("{"):])
     assert result["env_id"] == "PegInsertionSide-v1" and result["episodes"] == 2 and result["success_rate"] == 1.0
