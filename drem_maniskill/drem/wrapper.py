@@ -14,6 +14,7 @@ needs only the last one (the end of a hold, of an expert's episode): a step's DR
 from __future__ import annotations
 
 from contextlib import contextmanager
+
 import gymnasium as gym
 import torch
 
