@@ -31,7 +31,6 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 import torch
 
-from drem_maniskill.drem.wrapper import drem_source
 from drem_maniskill.envs import check_env_id
 from drem_maniskill.evaluate.probes import end_reward
 from drem_maniskill.experts import get_policy, rollout
@@ -176,11 +175,7 @@ def expert_ends(run: RLConfig, seeds: Sequence[int], compare: Optional[str] = No
         horizon = max_episode_steps(run.task)
         ends = {}
         for seed in seeds:
-            if drem_source(env) is not None:
-                end, ep = end_reward(env, expert, int(seed), horizon, stop_on_success=True)
-            else:
-                ep = rollout(env, expert, int(seed), horizon, stop_on_success=True)
-                end = ep.rewards[-1]
+            end, ep = end_reward(env, expert, int(seed), horizon, stop_on_success=True)
             compared = measure(env, None, None, None)["compare_reward"] if measure else None
             ends[int(seed)] = dict(success=bool(ep.success), end_reward=float(end), objects=moving_objects(env),
                                    **({} if compared is None else {"compare_end_reward": compared}))

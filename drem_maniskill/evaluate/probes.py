@@ -14,7 +14,7 @@ from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 
-from drem_maniskill.drem.wrapper import reward_read_at_end
+from drem_maniskill.drem.wrapper import drem_source, reward_read_at_end
 from drem_maniskill.envs.adapter import SocketGeometry
 from drem_maniskill.experts import get_policy, rollout
 from drem_maniskill.experts.scripted import PRESS_DEPTH, HoldPolicy
@@ -160,11 +160,15 @@ def hold_length(turn: Optional[tuple], steps: int = HOLD_STEPS) -> int:
 
 
 def end_reward(env, policy: Callable, seed: int, steps: Optional[int] = None, stop_on_success: bool = False) -> tuple:
-    """``(the DREM reward where an episode of policy ends, the episode)``; ``env``: paid by a DREM reward.
+    """``(the reward where an episode of policy ends, the episode)``: the same number as the episode's last reward.
 
-    The episode's steps skip the reward and it is read once, at the end (``drem.wrapper.reward_read_at_end``): a
-    step's reward renders the cameras, and only the last one is read. The same number as the episode's last reward.
+    Where ``env`` is paid by a DREM reward (``drem.wrapper.drem_source``) the episode's steps skip it and it is read
+    once, at the end (``drem.wrapper.reward_read_at_end``): a step's DREM reward renders the cameras, and only the
+    last one is read. Any other reward is paid every step and the last one kept.
     """
+    if drem_source(env) is None:
+        ep = rollout(env, policy, int(seed), steps, stop_on_success=stop_on_success)
+        return ep.rewards[-1], ep
     with reward_read_at_end(env) as read:
         ep = rollout(env, policy, int(seed), steps, stop_on_success=stop_on_success)
         return float(read().reshape(-1)[0]), ep

@@ -48,3 +48,19 @@ def test_the_reward_read_only_at_a_holds_end_is_the_last_reward_of_the_same_hold
     assert mode == "drem" and force > 0 and ep.length == paid.length == 12
     assert set(ep.rewards) == {0.0} and len(set(paid.rewards)) > 1  # the hold itself was not paid
     assert read == paid.rewards[-1]
+
+
+def test_a_reward_that_is_not_drem_is_paid_every_step_and_the_last_one_read():
+    """``end_reward`` on another reward (here the task's normalized_dense): every step paid, the last one returned."""
+    import gymnasium as gym
+
+    import drem_maniskill  # noqa: F401
+    from drem_maniskill.evaluate.probes import end_reward, hold_targets
+    from drem_maniskill.experts.scripted import HoldPolicy
+
+    env = gym.make("PegInHole-v1", obs_mode="state_dict", reward_mode="normalized_dense")
+    try:
+        read, ep = end_reward(env, HoldPolicy(env, hold_targets(env)["4 mm above"]), 3, 6)
+    finally:
+        env.close()
+    assert ep.length == 6 and len(set(ep.rewards)) > 1 and read == ep.rewards[-1]
