@@ -62,6 +62,9 @@ OUTWARD = {"sampler": {"phases": {"outward": {"depth": 10, "lineages": 12, "chil
 TWIST = {"sampler": {"phases": {"twist": {"depth": 10}}}}
 # Lineages moving the part across its approach from the same seeds (no geometry).
 SLIDE = {"sampler": {"phases": {"slide": {"depth": 10}}}}
+# The same lineages in steps of a tenth of the loop's range there: a part a few millimetres beside the path is labelled
+# as many steps farther as the fine steps that took it there, more than the loss's eps of 4 past about 2 mm.
+FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 12, "step": 0.1}}}}
 # Two policy rounds whose SAC runs half the 50,000 steps the reward is judged at, so its policy reaches the states
 # a trained policy stops in (on USB no policy inserted the plug before 17,500 steps).
 TWO_LONG_ROUNDS = {"rounds": {"rounds": 2, "sac_steps": 25000, "episodes": 20, "iterations": 1000}}
@@ -78,6 +81,7 @@ VARIANTS = {
     "even_path_outward_twist_long": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING),
     "even_path_outward_twist_slide_long": (EVEN_PATH, OUTWARD, TWIST, SLIDE, LONG_TRAINING),
     "graded_path_outward_twist_long": (EVEN_PATH, GRADED, OUTWARD, TWIST, LONG_TRAINING),
+    "even_path_outward_twist_fine_slide_long": (EVEN_PATH, OUTWARD, TWIST, FINE_SLIDE, LONG_TRAINING),
     "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -110,6 +114,7 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "even_path_outward_long": ("even_path_outward", False),
              "even_path_outward_twist_long": ("even_path_outward_long", False),
              "even_path_outward_twist_slide_long": ("even_path_outward_twist_long", False),
+             "even_path_outward_twist_fine_slide_long": ("even_path_outward_long", False),
              "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
@@ -117,7 +122,8 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "five_trees_poses_swap_three_rounds": ("five_trees_poses_swap", True),
              "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (
                  "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
-GROWS = {"even_path_outward_twist_long", "even_path_outward_twist_slide_long"}
+GROWS = {"even_path_outward_twist_long", "even_path_outward_twist_slide_long",
+         "even_path_outward_twist_fine_slide_long"}
 RESULTS = Path("docs/results/general_recipe")
 RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
 # float32, the env in the trainer's process: as the shipped comparison's runs.

@@ -253,6 +253,53 @@ def test_actions_follow_the_experts_step_when_asked():
     assert action_scale_at(0, ee, SamplerConfig(action_scale=0.7), 0.02) == 0.7  # off: the fixed range
 
 
+def test_slide_step_draws_the_lineages_children_within_that_fraction_of_the_loops_range(monkeypatch):
+    """phases.slide.step: each lineage's children come from that fraction of the backward loop's range at its origin;
+    a step outside (0, 1] is refused."""
+    from types import SimpleNamespace
+
+    from drem_maniskill.pipeline.tree.phases import base, slide
+
+    asked = []
+
+    class Pool:
+        def children_of(self, seeds, nodes, depth, count, scale, stream, shape):
+            asked.append(scale)
+            raise StopIteration  # the range is all this test reads
+
+    monkeypatch.setattr(slide, "origin_poses", lambda ctx, reach, every: np.zeros((1, 7)))
+    monkeypatch.setattr(slide, "approach_of", lambda path, reach, start: np.array([0.0, 0.0, -1.0]))
+    monkeypatch.setattr(base, "near_goal_depths", lambda reach, every, start: [1])
+    monkeypatch.setattr(base.tree_file, "read_seeds", lambda group: ([object()], [7]))
+
+    class File:
+        attrs = {}
+
+        def __init__(self, *args):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *args):
+            return False
+
+        def __getitem__(self, key):
+            return None
+
+    monkeypatch.setattr(base.h5py, "File", File)
+    ctx = base.PhaseContext(partial=Path("tree.h5"), pool=Pool(), config=None, start_depth=10,
+                            backward_scale=lambda depth: 0.4, geometry=None, progress=False)
+    monkeypatch.setattr(base.PhaseContext, "sampler", property(lambda self: SimpleNamespace(translation_limit=0.02)))
+    for step in (1.0, 0.25):
+        with pytest.raises(StopIteration):
+            slide.sample_slide(ctx, slide.SlideConfig(depth=3, lineages=2, step=step))
+    assert asked == [pytest.approx(0.4), pytest.approx(0.1)]
+    for step in (0.0, 1.5):
+        with pytest.raises(ValueError, match="phases.slide.step"):
+            slide.SlideConfig(depth=3, step=step)
+
+
 def test_even_path_splits_the_demos_long_steps_into_its_median_step_and_keeps_its_poses():
     """even_path: a demo of 2 mm steps ending in two 6 mm pushes walks the pushes in 2 mm steps too, through the
     recorded poses, the goal last; the quaternion takes the short way round and stays a unit one."""

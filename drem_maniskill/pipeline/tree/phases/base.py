@@ -121,15 +121,17 @@ def full_range_rotation(rotation: list, full: float) -> ActionShape:
 
 def grow_near_goal_lineages(ctx: PhaseContext, config: Any, group: str, counter: str, per_origin: int,
                             progress: Callable[[np.ndarray, np.ndarray], np.ndarray],
-                            least: Callable[[float], float], shape: Optional[ActionShape] = None) -> None:
+                            least: Callable[[float], float], shape: Optional[ActionShape] = None,
+                            range_scale: float = 1.0) -> None:
     """Grow ``per_origin`` lineages from each backward seed of ``near_goal_depths`` for ``config.depth`` steps
     (``config``: a near-goal phase's settings, with ``depth``, ``reach``, ``every`` and ``children``).
 
-    At each step every live lineage gets ``config.children`` children within the backward loop's range at its origin
-    (reshaped by ``shape``), all labelled the origin's depth plus the step, and keeps the one that went farthest by
-    ``progress(ee [n, 7], lineage [n])`` (how far each child went its lineage's way from the lineage's origin); a
-    lineage whose best child gained less than ``least(range)`` on its last step ends there. Steps go to
-    ``seeds/<group>_<k>`` with the live lineages, their labels and progress for a resume; ``counter`` counts them.
+    At each step every live lineage gets ``config.children`` children within ``range_scale`` of the backward loop's
+    range at its origin (reshaped by ``shape``), all labelled the origin's depth plus the step, and keeps the one that
+    went farthest by ``progress(ee [n, 7], lineage [n])`` (how far each child went its lineage's way from the
+    lineage's origin); a lineage whose best child gained less than ``least(range)`` on its last step ends there. Steps
+    go to ``seeds/<group>_<k>`` with the live lineages, their labels and progress for a resume; ``counter`` counts
+    them.
     """
     depths = near_goal_depths(config.reach, config.every, ctx.start_depth)
     with h5py.File(ctx.partial, "r") as f:
@@ -153,7 +155,7 @@ def grow_near_goal_lineages(ctx: PhaseContext, config: Any, group: str, counter:
         # One range per origin depth: the backward loop's there, so a lineage moves as the loop's children did.
         for label in np.unique(labels):
             rows = np.flatnonzero(labels == label)
-            scale = ctx.backward_scale(int(label))
+            scale = ctx.backward_scale(int(label)) * range_scale
             part = ctx.children_of([seeds[i] for i in rows], [nodes[i] for i in rows], k * 1000 + int(label),
                                    config.children, scale, shape=shape)
             part["lineage"] = np.repeat(rows, config.children)

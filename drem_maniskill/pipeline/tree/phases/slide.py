@@ -1,14 +1,15 @@
-"""The slide phase: lineages that move the held part sideways, across its approach, from the backward seeds nearest
-the goal (not in the paper).
+"""The slide phase: lineages that move the held part sideways, across its approach, from the backward seeds nearest the
+goal (not in the paper).
 
 Near the goal the backward loop's children stay within the expert's small step of its path, so the tree holds few
 states where the part is near the goal but beside it (pressed on the socket's face a few millimetres off the opening,
-or hovering beside it), and a reward trained on them values those states arbitrarily. The approach is the direction
-the backward seeds moved in, from the seed of the last depth in ``reach`` to the goal; each lineage starts at a
-backward seed of that stretch and keeps the child that went farthest from it along one direction across the approach
-(``lineages`` of them, spread evenly around it); step ``k`` is labelled the seed's depth plus ``k``. A lineage whose
-best child moved less than ``min_move`` of the step range along its direction (the part held by what surrounds it)
-ends there. The phase reads the tree's own end-effector positions only, never the task's geometry.
+or hovering beside it), and a reward trained on them values those states arbitrarily. The approach is the direction the
+backward seeds moved in, from the seed of the last depth in ``reach`` to the goal; each lineage starts at a backward
+seed of that stretch and keeps the child that went farthest from it along one direction across the approach
+(``lineages`` of them, spread evenly around it), its children drawn within ``step`` of the loop's range there; step
+``k`` is labelled the seed's depth plus ``k``. A lineage whose best child moved less than ``min_move`` of the step
+range along its direction (the part held by what surrounds it) ends there. The phase reads the tree's own end-effector
+positions only, never the task's geometry.
 """
 
 from __future__ import annotations
@@ -44,6 +45,15 @@ class SlideConfig:
     """Random actions per lineage and step, within the backward loop's range at the lineage's origin."""
     min_move: float = 0.25
     """A lineage ends when its best child moved less than this fraction of its step range along its direction."""
+    step: float = 1.0
+    """The children's action range as a fraction of the backward loop's range at the lineage's origin. Below 1 a
+    lineage leaves the path in finer steps, each labelled one more, so a part a few millimetres beside the path is
+    labelled as many steps farther as the fine steps it took to get there."""
+
+    def __post_init__(self):
+        if not 0 < self.step <= 1:
+            raise ValueError(f"phases.slide.step must be in (0, 1] (a fraction of the backward loop's range), got "
+                             f"{self.step}")
 
 
 def slide_directions(approach: np.ndarray, count: int) -> np.ndarray:
@@ -81,7 +91,7 @@ def sample_slide(ctx: PhaseContext, config: SlideConfig) -> None:
         return np.einsum("nx,nx->n", ee[:, :3] - origin[lineage], directions[lineage])
 
     grow_near_goal_lineages(ctx, config, "slide", PHASE.counter, config.lineages, moved,
-                            lambda scale: config.min_move * scale * limit)
+                            lambda scale: config.min_move * scale * limit, range_scale=config.step)
 
 
 PHASE = Phase(
