@@ -300,6 +300,53 @@ def test_slide_step_draws_the_lineages_children_within_that_fraction_of_the_loop
             slide.SlideConfig(depth=3, step=step)
 
 
+def test_slide_lineages_start_up_to_reach_and_move_across_the_approach_of_approach_reach(monkeypatch):
+    """phases.slide.approach_reach: the origins come from ``reach`` of the loop's depths, the approach from
+    ``approach_reach`` of them (``reach`` when left out); a value outside (0, 1] is refused."""
+    from types import SimpleNamespace
+
+    from drem_maniskill.pipeline.tree.phases import slide
+
+    asked = {}
+    monkeypatch.setattr(slide, "origin_poses", lambda ctx, reach, every: asked.setdefault("origins", reach)
+                        and np.zeros((2, 7)))
+    monkeypatch.setattr(slide, "approach_of", lambda path, reach, start: asked.setdefault("approach", reach)
+                        and np.array([0.0, 0.0, -1.0]))
+    monkeypatch.setattr(slide, "grow_near_goal_lineages", lambda *args, **kwargs: None)
+    ctx = SimpleNamespace(partial=Path("tree.h5"), start_depth=10, sampler=SimpleNamespace(translation_limit=0.02))
+    for settings, expected in ((dict(reach=1.0, approach_reach=0.5), (1.0, 0.5)), (dict(reach=0.75), (0.75, 0.75))):
+        asked.clear()
+        slide.sample_slide(ctx, slide.SlideConfig(depth=3, lineages=2, **settings))
+        assert (asked["origins"], asked["approach"]) == expected
+    for value in (0.0, 1.5):
+        with pytest.raises(ValueError, match="phases.slide.approach_reach"):
+            slide.SlideConfig(depth=3, approach_reach=value)
+
+
+def test_twist_step_turns_the_lineages_children_within_that_fraction_of_the_rotation_step(monkeypatch):
+    """phases.twist.step: the children's rotation spans that fraction of the controller's full rotation range, and a
+    lineage ends below ``min_turn`` of that range; a step outside (0, 1] is refused."""
+    from types import SimpleNamespace
+
+    from drem_maniskill.pipeline.tree.phases import twist
+
+    grown = []
+    monkeypatch.setattr(twist, "origin_poses", lambda ctx, reach, every: np.array([[0.0, 0, 0, 1, 0, 0, 0]]))
+    monkeypatch.setattr(twist, "grow_near_goal_lineages", lambda *args, **kwargs: grown.append((args[6], kwargs)))
+    ctx = SimpleNamespace(partial=Path("tree.h5"), start_depth=10, config=SimpleNamespace(action_scale=1.0),
+                          sampler=SimpleNamespace(rotation_dims=[3, 4, 5], rotation_limit=0.05))
+    for step in (1.0, 0.25):
+        twist.sample_twist(ctx, twist.TwistConfig(depth=3, step=step, min_turn=0.5))
+    for (least, kwargs), step in zip(grown, (1.0, 0.25)):
+        actions = kwargs["shape"](np.full((2, 6), 0.1), 0.1)  # drawn within the loop's range 0.1
+        np.testing.assert_allclose(actions[:, :3], 0.1)  # the translation stays within the loop's range
+        np.testing.assert_allclose(actions[:, 3:], step)  # the rotation spans step of the full range
+        assert least(0.1) == pytest.approx(0.5 * 0.05 * step)
+    for step in (0.0, 1.5):
+        with pytest.raises(ValueError, match="phases.twist.step"):
+            twist.TwistConfig(depth=3, step=step)
+
+
 def test_even_path_splits_the_demos_long_steps_into_its_median_step_and_keeps_its_poses():
     """even_path: a demo of 2 mm steps ending in two 6 mm pushes walks the pushes in 2 mm steps too, through the
     recorded poses, the goal last; the quaternion takes the short way round and stays a unit one."""

@@ -3,18 +3,19 @@ goal (not in the paper).
 
 Near the goal the backward loop's children stay within the expert's small step of its path, so the tree holds few
 states where the part is near the goal but beside it (pressed on the socket's face a few millimetres off the opening,
-or hovering beside it), and a reward trained on them values those states arbitrarily. The approach is the direction the
-backward seeds moved in, from the seed of the last depth in ``reach`` to the goal; each lineage starts at a backward
-seed of that stretch and keeps the child that went farthest from it along one direction across the approach
-(``lineages`` of them, spread evenly around it), its children drawn within ``step`` of the loop's range there; step
-``k`` is labelled the seed's depth plus ``k``. A lineage whose best child moved less than ``min_move`` of the step
-range along its direction (the part held by what surrounds it) ends there. The phase reads the tree's own end-effector
-positions only, never the task's geometry.
+or hovering beside it), and a reward trained on them values those states arbitrarily. Each lineage starts at a backward
+seed of the stretch of the path nearest the goal (``reach``) and keeps the child that went farthest from it along one
+direction across the approach (``lineages`` of them, spread evenly around it), its children drawn within ``step`` of the
+loop's range there; step ``k`` is labelled the seed's depth plus ``k``. The approach is the direction the backward seeds
+moved in, from the seed of the last depth in ``approach_reach`` (or ``reach``) to the goal. A lineage whose best child
+moved less than ``min_move`` of the step range along its direction (the part held by what surrounds it) ends there.
+The phase reads the tree's own end-effector positions only, never the task's geometry.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import h5py
 import numpy as np
@@ -37,8 +38,11 @@ class SlideConfig:
     lineages: int = 8
     """Directions per origin, across the approach, spread evenly around it."""
     reach: float = 0.5
-    """The lineages start at the backward seeds of this fraction of the depths to the start region, nearest the goal;
-    the approach runs from the last of them to the goal."""
+    """The lineages start at the backward seeds of this fraction of the depths to the start region, nearest the goal."""
+    approach_reach: Optional[float] = None
+    """The approach runs from the backward seed at this fraction of the depths to the start region to the goal (None:
+    ``reach``). Lineages from farther up the path (``reach`` above it) still move across the final approach, not
+    across the way the demo came in from the start region."""
     every: int = 2
     """Of those depths, every ``every``-th (from depth 1) starts lineages."""
     children: int = 16
@@ -51,6 +55,9 @@ class SlideConfig:
     labelled as many steps farther as the fine steps it took to get there."""
 
     def __post_init__(self):
+        if self.approach_reach is not None and not 0 < self.approach_reach <= 1:
+            raise ValueError(f"phases.slide.approach_reach must be in (0, 1] (a fraction of the backward loop's "
+                             f"depths) or left out, got {self.approach_reach}")
         if not 0 < self.step <= 1:
             raise ValueError(f"phases.slide.step must be in (0, 1] (a fraction of the backward loop's range), got "
                              f"{self.step}")
@@ -82,7 +89,8 @@ def approach_of(path, reach: float, start_depth: int) -> np.ndarray:
 def sample_slide(ctx: PhaseContext, config: SlideConfig) -> None:
     """Lineage ``l`` keeps the child that went farthest from its origin along its direction (``slide_directions``)."""
     origin = np.repeat(origin_poses(ctx, config.reach, config.every)[:, :3], config.lineages, axis=0)
-    approach = approach_of(ctx.partial, config.reach, ctx.start_depth)
+    approach = approach_of(ctx.partial, config.reach if config.approach_reach is None else config.approach_reach,
+                           ctx.start_depth)
     directions = np.tile(slide_directions(approach, config.lineages), (len(origin) // config.lineages, 1))
     limit = ctx.sampler.translation_limit
 

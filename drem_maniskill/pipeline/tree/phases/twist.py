@@ -4,11 +4,12 @@ nearest the goal (not in the paper).
 Near the goal the backward loop's children move within the expert's small step, so the tree holds few states where the
 part is near its goal pose but turned or tilted, and a reward trained on it values them arbitrarily: it may pay a part
 turned at the opening like an insertion, and a policy then stops there. Each lineage starts at a backward seed of the
-half of the path nearest the goal and keeps the child that turned farthest about one axis of the end effector's frame
-at that seed (x, y and z, each way); step ``k`` is labelled the seed's depth plus ``k``, as the backward loop labels a
-state ``k`` steps from its seed. A lineage whose best child turned less than ``min_turn`` of a full rotation step (the
-part held by what surrounds it) ends there: going on, it would label states like its seed ever farther. The phase reads
-the end effector's pose and the controller's rotation step only, never the task's geometry.
+stretch of the path nearest the goal (``reach``) and keeps the child that turned farthest about one axis of the end
+effector's frame at that seed (x, y and z, each way); step ``k`` is labelled the seed's depth plus ``k``, as the
+backward loop labels a state ``k`` steps from its seed. A lineage whose best child turned less than ``min_turn`` of its
+rotation range (``step`` of the controller's full rotation step) ends there, the part held by what surrounds it: going
+on, it would label states like its seed ever farther. The phase reads the end effector's pose and the controller's
+rotation step only, never the task's geometry.
 """
 
 from __future__ import annotations
@@ -42,10 +43,19 @@ class TwistConfig:
     every: int = 2
     """Of those depths, every ``every``-th (from depth 1) starts lineages."""
     children: int = 16
-    """Random actions per lineage and step: the rotation over the whole range, the translation within the backward
-    loop's range at the lineage's origin."""
+    """Random actions per lineage and step: the rotation over its whole range (``step``), the translation within
+    the backward loop's range at the lineage's origin."""
     min_turn: float = 0.25
-    """A lineage ends when its best child turned less than this fraction of the controller's full rotation step."""
+    """A lineage ends when its best child turned less than this fraction of its rotation range."""
+    step: float = 1.0
+    """The children's rotation range as a fraction of the controller's full rotation step. Below 1 a lineage turns in
+    finer steps, each labelled one more, so a part tilted a few degrees is labelled as many steps farther as the fine
+    steps it took to get there."""
+
+    def __post_init__(self):
+        if not 0 < self.step <= 1:
+            raise ValueError(f"phases.twist.step must be in (0, 1] (a fraction of the controller's rotation step), "
+                             f"got {self.step}")
 
 
 def twist_axes(quaternions: np.ndarray) -> np.ndarray:
@@ -61,16 +71,16 @@ def twist_axes(quaternions: np.ndarray) -> np.ndarray:
 def sample_twist(ctx: PhaseContext, config: TwistConfig) -> None:
     """Lineage ``l`` keeps the child whose rotation from its origin goes farthest about its axis (``twist_axes``)."""
     origin_q = origin_poses(ctx, config.reach, config.every)[:, 3:7]
-    axes, full = twist_axes(origin_q), ctx.config.action_scale
+    axes, full = twist_axes(origin_q), ctx.config.action_scale * config.step
     origin_q = np.repeat(origin_q, AXES_PER_ORIGIN, axis=0)
-    rotation, step = ctx.sampler.rotation_dims, ctx.sampler.rotation_limit * full
+    rotation, turn = ctx.sampler.rotation_dims, ctx.sampler.rotation_limit * full
 
     def turned(ee: np.ndarray, lineage: np.ndarray) -> np.ndarray:
         """Radians each child turned about its lineage's axis since the lineage's origin."""
         return np.einsum("nx,nx->n", rotation_vectors(ee[:, 3:7], origin_q[lineage]), axes[lineage])
 
     grow_near_goal_lineages(ctx, config, "twist", PHASE.counter, AXES_PER_ORIGIN, turned,
-                            lambda scale: config.min_turn * step,
+                            lambda scale: config.min_turn * turn,
                             shape=full_range_rotation(rotation, full))
 
 
