@@ -65,6 +65,10 @@ SLIDE = {"sampler": {"phases": {"slide": {"depth": 10}}}}
 # The same lineages in steps of a tenth of the loop's range there: a part a few millimetres beside the path is labelled
 # as many steps farther as the fine steps that took it there, more than the loss's eps of 4 past about 2 mm.
 FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 12, "step": 0.1}}}}
+# Fine slide lineages from every second depth of the whole path (not only the half nearest the goal), across the final
+# approach, for twice the steps: a part a centimetre or more beside an opening deeper than half the path, where policies
+# on the fine-slide reward stop, is a state the tree labels rather than one the reward guesses at.
+FAR_FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 24, "step": 0.1, "reach": 1.0, "approach_reach": 0.5}}}}
 # Two policy rounds whose SAC runs half the 50,000 steps the reward is judged at, so its policy reaches the states
 # a trained policy stops in (on USB no policy inserted the plug before 17,500 steps).
 TWO_LONG_ROUNDS = {"rounds": {"rounds": 2, "sac_steps": 25000, "episodes": 20, "iterations": 1000}}
@@ -82,6 +86,7 @@ VARIANTS = {
     "even_path_outward_twist_slide_long": (EVEN_PATH, OUTWARD, TWIST, SLIDE, LONG_TRAINING),
     "graded_path_outward_twist_long": (EVEN_PATH, GRADED, OUTWARD, TWIST, LONG_TRAINING),
     "even_path_outward_twist_fine_slide_long": (EVEN_PATH, OUTWARD, TWIST, FINE_SLIDE, LONG_TRAINING),
+    "even_path_outward_twist_far_fine_slide_long": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE, LONG_TRAINING),
     "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -115,6 +120,7 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "even_path_outward_twist_long": ("even_path_outward_long", False),
              "even_path_outward_twist_slide_long": ("even_path_outward_twist_long", False),
              "even_path_outward_twist_fine_slide_long": ("even_path_outward_long", False),
+             "even_path_outward_twist_far_fine_slide_long": ("even_path_outward_twist_long", False),
              "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
@@ -123,7 +129,7 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (
                  "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
 GROWS = {"even_path_outward_twist_long", "even_path_outward_twist_slide_long",
-         "even_path_outward_twist_fine_slide_long"}
+         "even_path_outward_twist_fine_slide_long", "even_path_outward_twist_far_fine_slide_long"}
 RESULTS = Path("docs/results/general_recipe")
 RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
 # float32, the env in the trainer's process: as the shipped comparison's runs.
