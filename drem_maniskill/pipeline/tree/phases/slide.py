@@ -23,6 +23,7 @@ import numpy as np
 from drem_maniskill.pipeline.tree.phases.base import (
     Phase,
     PhaseContext,
+    check_fraction,
     grow_near_goal_lineages,
     near_goal_last,
     origin_poses,
@@ -55,12 +56,8 @@ class SlideConfig:
     labelled as many steps farther as the fine steps it took to get there."""
 
     def __post_init__(self):
-        if self.approach_reach is not None and not 0 < self.approach_reach <= 1:
-            raise ValueError(f"phases.slide.approach_reach must be in (0, 1] (a fraction of the backward loop's "
-                             f"depths) or left out, got {self.approach_reach}")
-        if not 0 < self.step <= 1:
-            raise ValueError(f"phases.slide.step must be in (0, 1] (a fraction of the backward loop's range), got "
-                             f"{self.step}")
+        check_fraction("phases.slide.approach_reach", self.approach_reach, "the backward loop's depths", optional=True)
+        check_fraction("phases.slide.step", self.step, "the backward loop's range")
 
 
 def slide_directions(approach: np.ndarray, count: int) -> np.ndarray:

@@ -23,6 +23,7 @@ from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from drem_maniskill.pipeline.tree.phases.base import (
     Phase,
     PhaseContext,
+    check_fraction,
     full_range_rotation,
     grow_near_goal_lineages,
     origin_poses,
@@ -53,9 +54,7 @@ class TwistConfig:
     steps it took to get there."""
 
     def __post_init__(self):
-        if not 0 < self.step <= 1:
-            raise ValueError(f"phases.twist.step must be in (0, 1] (a fraction of the controller's rotation step), "
-                             f"got {self.step}")
+        check_fraction("phases.twist.step", self.step, "the controller's rotation step")
 
 
 def twist_axes(quaternions: np.ndarray) -> np.ndarray:
