@@ -72,6 +72,10 @@ FAR_FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 24, "step": 0.1, "re
 # Two policy rounds whose SAC runs half the 50,000 steps the reward is judged at, so its policy reaches the states
 # a trained policy stops in (on USB no policy inserted the plug before 17,500 steps).
 TWO_LONG_ROUNDS = {"rounds": {"rounds": 2, "sac_steps": 25000, "episodes": 20, "iterations": 1000}}
+# One policy round from a 50,000-step policy, its traps (failed states paid at least depth 9's pay) labelled as far from
+# the goal as the start region: the tree's own labels put a part a centimetre beside the path past the start, so a
+# trap found there is labelled no nearer than its neighbours.
+START_ROUND = {"rounds": {"rounds": 1, "sac_steps": 50_000, "episodes": 20, "iterations": 1000, "trap_label": "start"}}
 # The paper's 20,000 iterations.
 LONG_TRAINING = {"train": {"iterations": 20000}}
 # Variant -> the recipe parts merged over BASE, in order.
@@ -87,6 +91,8 @@ VARIANTS = {
     "graded_path_outward_twist_long": (EVEN_PATH, GRADED, OUTWARD, TWIST, LONG_TRAINING),
     "even_path_outward_twist_fine_slide_long": (EVEN_PATH, OUTWARD, TWIST, FINE_SLIDE, LONG_TRAINING),
     "even_path_outward_twist_far_fine_slide_long": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE, LONG_TRAINING),
+    "even_path_outward_twist_far_fine_slide_long_start_round": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE,
+                                                                LONG_TRAINING, START_ROUND),
     "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -121,6 +127,8 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "even_path_outward_twist_slide_long": ("even_path_outward_twist_long", False),
              "even_path_outward_twist_fine_slide_long": ("even_path_outward_long", False),
              "even_path_outward_twist_far_fine_slide_long": ("even_path_outward_twist_long", False),
+             "even_path_outward_twist_far_fine_slide_long_start_round": (
+                 "even_path_outward_twist_far_fine_slide_long", True),
              "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
@@ -198,6 +206,17 @@ def reuse_trees(work: Path, source, with_reward: bool, grow: bool = False) -> No
         shutil.copytree(source / name, work / name)
     for tree in source.glob("tree*.h5"):
         shutil.copyfile(tree, work / (f"{tree.name}.partial" if grow else tree.name))
+
+
+def place_round_policy(task: str, work: Path, run: Path, variant: str) -> None:
+    """The finished SAC run ``run`` as round 1's policy of ``variant`` in ``work`` (``stall_round.place_policy``)."""
+    from stall_round import place_policy  # experiments/ is the folder
+
+    from drem_maniskill.pipeline.recipe import load_recipe
+
+    if not (run / "config.json").is_file():
+        raise FileNotFoundError(f"{run} holds no SAC run: train it first (--seeds on the variant built on)")
+    place_policy(task, work, run, load_recipe(task, "full", recipe(variant)).rounds_config(), 1)
 
 
 def link_demo_and_tree(build: Path, work: Path) -> None:
@@ -331,12 +350,18 @@ def main() -> None:
     p.add_argument("--out", default="outputs/general_recipe")
     p.add_argument("--seeds", nargs="*", type=int, default=[], help="state SAC seeds on each built reward")
     p.add_argument("--steps", type=int, default=50_000)
+    p.add_argument("--round-policy", type=int, default=None, metavar="SEED",
+                   help="round 1's policy: the finished state SAC run of this seed on the variant built on "
+                        "(<out>/<task>/sac/<that variant>/seed<SEED>), which the round would otherwise train again")
     args = p.parse_args()
     for task in args.tasks:
         for variant in args.variants:
             work = Path(args.out) / task / variant
             source, with_reward = BUILDS_ON.get(variant, (None, False))
             reuse_trees(work, Path(args.out) / task / source if source else None, with_reward, variant in GROWS)
+            if args.round_policy is not None and source and with_reward:
+                place_round_policy(task, work, Path(args.out) / task / "sac" / source / f"seed{args.round_policy}",
+                                   variant)
             _, seconds = timed_build(task, work, recipe(variant), keep=RESULTS / task / "build" / variant)
             result = summary(task, variant, work, seconds)
             dest = RESULTS / task / f"{variant}.json"

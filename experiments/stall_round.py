@@ -27,9 +27,10 @@ from general_recipe import examination_measures, sac_on_reward  # experiments/ i
 
 RESULTS = Path("docs/results/general")
 # What the round's SAC config may differ in from the run it takes: where it lives, what pays it (the same file,
-# sha256-checked on resume), how it is evaluated, whether its env steps in a child process, and its seed (a round's
-# is seed + k - 1; either is one SAC run on the round's reward).
-ROUND_ONLY = {"out", "reward_checkpoint", "eval_every", "eval_episodes", "steps", "overlap_env", "seed"}
+# sha256-checked on resume), how it is evaluated, whether its env steps in a child process, its float precision in
+# training (the round needs the states a policy reaches, not its training speed), and its seed (a round's is
+# seed + k - 1; either is one SAC run on the round's reward).
+ROUND_ONLY = {"out", "reward_checkpoint", "eval_every", "eval_episodes", "steps", "overlap_env", "train_bf16", "seed"}
 
 
 def stall_rounds(rounds: int) -> dict:

@@ -9,8 +9,9 @@ anyone naming the states:
    the states the reward pays at least what it pays the tree's nodes at ``negative_depth`` are hard
    negatives (the measured rule: paid more than a node that far from the goal, yet no success);
 3. they join the tree at depth ``negative_depth``, farther from the goal than its neighbourhood
-   (``2 eps + 1`` by default: beyond the goal's neighbours and theirs), and the model is fine-tuned from the
-   current weights for ``iterations`` on the tree and every round's negatives.
+   (``2 eps + 1`` by default: beyond the goal's neighbours and theirs), or with ``trap_label = "start"`` at the
+   depth of the start region, and the model is fine-tuned from the current weights for ``iterations`` on the tree
+   and every round's negatives.
 
 A policy also fails where the reward stops rising short of the goal: a plateau no trap rule sees, since it pays
 less than the goal. With ``stall_window > 0`` a round looks for it too: a failed episode whose reward rose by less
@@ -57,6 +58,10 @@ class RoundsConfig:
     """Episodes of the round's policy (sampled actions) searched for hard negatives."""
     negative_depth: Optional[int] = None
     """The depth hard negatives are labelled with; None: 2 eps + 1."""
+    trap_label: str = "depth"
+    """What the traps (failed states paid at least ``negative_depth``'s pay) are labelled: ``depth``,
+    ``negative_depth``; ``start``, the tree's start-region depth: a failed state paid like the goal is put as far from
+    it as the start, since nothing in the tree says how far it is."""
     max_negatives: int = 1_000
     """At most this many hard negatives per round (evenly spread over the candidates)."""
     iterations: int = 1_000
@@ -68,9 +73,25 @@ class RoundsConfig:
     stall_rise: float = 0.02
     """A failed episode stalled when its best reward in the window exceeds its best before it by less than this."""
 
+    def __post_init__(self):
+        if self.trap_label not in TRAP_LABELS:
+            raise ValueError(f"rounds.trap_label = {self.trap_label!r} is not a label: use one of {list(TRAP_LABELS)}")
+
     def depth(self, eps: float) -> int:
-        """The hard negatives' depth label for the triplet loss's ``eps``."""
+        """The depth whose pay makes a failed state a trap, for the triplet loss's ``eps`` (``negative_depth``)."""
         return int(self.negative_depth) if self.negative_depth is not None else int(2 * eps + 1)
+
+    def trap_depth(self, eps: float, start_depth: Optional[int]) -> int:
+        """The depth label of a trap in a tree whose backward loop reached the start region at ``start_depth``."""
+        if self.trap_label != "start":
+            return self.depth(eps)
+        if start_depth is None:
+            raise ValueError("rounds.trap_label = 'start' labels traps at the tree's start-region depth, but this tree "
+                             "never reached the start region: sample it further, or use trap_label = 'depth'")
+        return int(start_depth)
+
+
+TRAP_LABELS = ("depth", "start")
 
 
 def round_policy_config(task: str, checkpoint, config: RoundsConfig, k: int, round_dir: Path):
@@ -179,6 +200,7 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
     """Round ``k`` from ``checkpoint``; returns ``(its checkpoint, its record)``, each stage resumed where it was."""
     from drem_maniskill.drem.checkpoint import load_checkpoint
     from drem_maniskill.pipeline.train_reward import train_reward
+    from drem_maniskill.pipeline.tree.tree_file import start_depth
     from drem_maniskill.rl.train_policy import train_policy
 
     round_dir = out / f"round_{k}"
@@ -195,12 +217,13 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
             depths, paid = paid_by_depth(reward, data)
             stall_label = functools.partial(stall_depth, depths=depths, paid_curve=paid, eps=train_config.eps)
         del reward, data  # the tree's images: the episodes and the fine-tuning load their own
-        found = collect_negatives(run, checkpoint, threshold, config, k, depth, stall_label)
+        label = config.trap_depth(train_config.eps, start_depth(Path(tree)))
+        found = collect_negatives(run, checkpoint, threshold, config, k, label, stall_label)
         write_negatives(round_dir / "negatives.h5", found["rows"], found["depths"], train_config.model.cameras,
                         "ft" in train_config.model.modalities)
         last = result["last_eval"] or {}
         record = dict(round=k, sac_steps=run.steps, sac_success=last.get("success_rate"), negative_depth=depth,
-                      threshold=round(threshold, 4), **found["stats"])
+                      trap_depth=label, threshold=round(threshold, 4), **found["stats"])
         write_json(record_path, record)
     record = json.loads(record_path.read_text())
     negatives = [*negatives, str(round_dir / "negatives.h5")]

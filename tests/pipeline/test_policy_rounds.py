@@ -149,3 +149,16 @@ def test_a_recipe_takes_rounds_and_refuses_an_unknown_key():
     assert load_recipe("Any-v1", recipe={}).rounds_config().rounds == 0  # the paper's pipeline
     with pytest.raises(RecipeError, match="unknown key 'round'"):
         load_recipe("Any-v1", recipe={"rounds": {"round": 2}})
+
+
+def test_traps_are_labelled_negative_depth_or_the_start_regions_depth_and_a_bad_label_is_named():
+    assert RoundsConfig().trap_depth(4.0, 38) == 9  # 2 eps + 1
+    assert RoundsConfig(negative_depth=12).trap_depth(4.0, 38) == 12
+    start = RoundsConfig(negative_depth=12, trap_label="start")
+    assert start.trap_depth(4.0, 38) == 38 and start.depth(4.0) == 12  # found by depth 12's pay, labelled 38
+    with pytest.raises(ValueError, match="never reached the start region"):
+        start.trap_depth(4.0, None)
+    with pytest.raises(ValueError, match=r"rounds.trap_label = 'far'.*\['depth', 'start'\]"):
+        RoundsConfig(trap_label="far")
+    with pytest.raises(RecipeError, match="trap_label"):
+        load_recipe("PegInHole-v1", "full", {"rounds": {"trap_label": "far"}})
