@@ -76,6 +76,8 @@ TWO_LONG_ROUNDS = {"rounds": {"rounds": 2, "sac_steps": 25000, "episodes": 20, "
 # the goal as the start region: the tree's own labels put a part a centimetre beside the path past the start, so a
 # trap found there is labelled no nearer than its neighbours.
 START_ROUND = {"rounds": {"rounds": 1, "sac_steps": 50_000, "episodes": 20, "iterations": 1000, "trap_label": "start"}}
+# The same with a second such round, its policy 50,000 steps of SAC on the first round's reward.
+TWO_START_ROUNDS = {"rounds": {**START_ROUND["rounds"], "rounds": 2}}
 # The paper's 20,000 iterations.
 LONG_TRAINING = {"train": {"iterations": 20000}}
 # Variant -> the recipe parts merged over BASE, in order.
@@ -93,6 +95,8 @@ VARIANTS = {
     "even_path_outward_twist_far_fine_slide_long": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE, LONG_TRAINING),
     "even_path_outward_twist_far_fine_slide_long_start_round": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE,
                                                                 LONG_TRAINING, START_ROUND),
+    "even_path_outward_twist_far_fine_slide_long_two_start_rounds": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE,
+                                                                     LONG_TRAINING, TWO_START_ROUNDS),
     "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -129,6 +133,8 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "even_path_outward_twist_far_fine_slide_long": ("even_path_outward_twist_long", False),
              "even_path_outward_twist_far_fine_slide_long_start_round": (
                  "even_path_outward_twist_far_fine_slide_long", True),
+             "even_path_outward_twist_far_fine_slide_long_two_start_rounds": (
+                 "even_path_outward_twist_far_fine_slide_long_start_round", True),
              "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
@@ -193,8 +199,9 @@ def expert_end_on_demo_seeds(task: str, work: Path) -> float:
 
 
 def reuse_trees(work: Path, source, with_reward: bool, grow: bool = False) -> None:
-    """Start a variant (``BUILDS_ON``) from the demo and trees, and with ``with_reward`` the reward, of the variant
-    built in ``source``; with ``grow``, the trees as partial ones, which its sampling goes on from."""
+    """Start a variant (``BUILDS_ON``) from the demo and trees, and with ``with_reward`` the reward and finished policy
+    rounds, of the variant built in ``source``; with ``grow``, the trees as partial ones, which its sampling goes on
+    from."""
     import shutil
 
     if source is None or work.exists():
@@ -202,21 +209,24 @@ def reuse_trees(work: Path, source, with_reward: bool, grow: bool = False) -> No
     if not (source / "reward" / "drem.pt" if with_reward else source / "tree.h5").is_file():
         return
     work.mkdir(parents=True)
-    for name in ("expert", "reward") if with_reward else ("expert",):
-        shutil.copytree(source / name, work / name)
+    for name in ("expert", "reward", "rounds") if with_reward else ("expert",):
+        if (source / name).is_dir():  # a variant without rounds has no rounds/
+            shutil.copytree(source / name, work / name)
     for tree in source.glob("tree*.h5"):
         shutil.copyfile(tree, work / (f"{tree.name}.partial" if grow else tree.name))
 
 
 def place_round_policy(task: str, work: Path, run: Path, variant: str) -> None:
-    """The finished SAC run ``run`` as round 1's policy of ``variant`` in ``work`` (``stall_round.place_policy``)."""
+    """The finished SAC run ``run`` as the last round's policy of ``variant`` in ``work``, the rounds before it those
+    of the variant built on (``stall_round.place_policy``)."""
     from stall_round import place_policy  # experiments/ is the folder
 
     from drem_maniskill.pipeline.recipe import load_recipe
 
     if not (run / "config.json").is_file():
         raise FileNotFoundError(f"{run} holds no SAC run: train it first (--seeds on the variant built on)")
-    place_policy(task, work, run, load_recipe(task, "full", recipe(variant)).rounds_config(), 1)
+    rounds = load_recipe(task, "full", recipe(variant)).rounds_config()
+    place_policy(task, work, run, rounds, rounds.rounds)
 
 
 def link_demo_and_tree(build: Path, work: Path) -> None:
@@ -351,7 +361,7 @@ def main() -> None:
     p.add_argument("--seeds", nargs="*", type=int, default=[], help="state SAC seeds on each built reward")
     p.add_argument("--steps", type=int, default=50_000)
     p.add_argument("--round-policy", type=int, default=None, metavar="SEED",
-                   help="round 1's policy: the finished state SAC run of this seed on the variant built on "
+                   help="the last round's policy: the finished state SAC run of this seed on the variant built on "
                         "(<out>/<task>/sac/<that variant>/seed<SEED>), which the round would otherwise train again")
     args = p.parse_args()
     for task in args.tasks:
