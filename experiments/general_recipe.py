@@ -209,9 +209,10 @@ def reuse_trees(work: Path, source, with_reward: bool, grow: bool = False) -> No
     if not (source / "reward" / "drem.pt" if with_reward else source / "tree.h5").is_file():
         return
     work.mkdir(parents=True)
-    for name in ("expert", "reward", "rounds") if with_reward else ("expert",):
-        if (source / name).is_dir():  # a variant without rounds has no rounds/
-            shutil.copytree(source / name, work / name)
+    # Finished rounds, not rounds/drem.pt: that file marks the rounds stage done, and the variant adds a round.
+    rounds = sorted(p.relative_to(source) for p in source.glob("rounds/round_*")) if with_reward else []
+    for name in ("expert", "reward", *rounds) if with_reward else ("expert",):
+        shutil.copytree(source / name, work / name)
     for tree in source.glob("tree*.h5"):
         shutil.copyfile(tree, work / (f"{tree.name}.partial" if grow else tree.name))
 
