@@ -95,3 +95,23 @@ def test_a_stall_round_takes_a_finished_sac_run_as_its_policy_only_when_the_roun
     out = Path("outputs/general")
     assert stall_round.folders(out, "T", 1) == (out / "stall" / "T", out / "build" / "T", out / "T" / "drem")
     assert stall_round.folders(out, "T", 2) == (out / "stall2" / "T", out / "stall" / "T", out / "stall" / "T" / "sac")
+
+
+def test_a_variant_built_on_another_takes_its_demo_tree_reward_and_finished_rounds_but_not_the_rounds_mark(tmp_path):
+    """reuse_trees: a variant that adds a round starts from the rounds its source finished; ``rounds/drem.pt``, which
+    marks the rounds stage done, stays behind, or the added round would be skipped."""
+    import general_recipe
+
+    source = tmp_path / "source"
+    for name in ("expert/expert.h5", "reward/drem.pt", "rounds/round_1/collected.json", "rounds/round_1/train/drem.pt",
+                 "rounds/drem.pt", "tree.h5"):
+        (source / name).parent.mkdir(parents=True, exist_ok=True)
+        (source / name).write_text(name)
+    def files(folder: Path) -> list:
+        return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+
+    general_recipe.reuse_trees(tmp_path / "with_reward", source, True)
+    assert files(tmp_path / "with_reward") == ["expert/expert.h5", "reward/drem.pt", "rounds/round_1/collected.json",
+                                               "rounds/round_1/train/drem.pt", "tree.h5"]
+    general_recipe.reuse_trees(tmp_path / "trees_only", source, False, grow=True)
+    assert files(tmp_path / "trees_only") == ["expert/expert.h5", "tree.h5.partial"]
