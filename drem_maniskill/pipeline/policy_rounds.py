@@ -6,8 +6,9 @@ anyone naming the states:
 
 1. SAC (the ``state`` preset) trains on the current reward for ``sac_steps``;
 2. its policy runs ``episodes`` held-out episodes, sampling its actions; in every episode without success,
-   the states the reward pays at least what it pays the tree's nodes at ``negative_depth`` are hard
-   negatives (the measured rule: paid more than a node that far from the goal, yet no success);
+   the states the reward pays at least what it pays the tree's nodes at ``negative_depth`` (or, with
+   ``trap_share``, that share of what it pays the goal) are hard negatives (the measured rule: paid more than a
+   node that far from the goal, yet no success);
 3. they join the tree at depth ``negative_depth``, farther from the goal than its neighbourhood
    (``2 eps + 1`` by default: beyond the goal's neighbours and theirs), or with ``trap_label = "start"`` at the
    depth of the start region, and the model is fine-tuned from the current weights for ``iterations`` on the tree
@@ -62,6 +63,10 @@ class RoundsConfig:
     """What the traps (failed states paid at least ``negative_depth``'s pay) are labelled: ``depth``,
     ``negative_depth``; ``start``, the tree's start-region depth: a failed state paid like the goal is put as far from
     it as the start, since nothing in the tree says how far it is."""
+    trap_share: Optional[float] = None
+    """With a value in (0, 1], a failed state is a trap when paid at least this share of what the reward pays the
+    tree's goal (depth 0), the rule ``check-reward`` judges a paid failure by (0.8); None: at least ``negative_depth``'s
+    pay."""
     max_negatives: int = 1_000
     """At most this many hard negatives per round (evenly spread over the candidates)."""
     iterations: int = 1_000
@@ -74,6 +79,8 @@ class RoundsConfig:
     """A failed episode stalled when its best reward in the window exceeds its best before it by less than this."""
 
     def __post_init__(self):
+        if self.trap_share is not None and not 0 < self.trap_share <= 1:
+            raise ValueError(f"rounds.trap_share must be in (0, 1] (a share of the goal's pay), got {self.trap_share}")
         if self.trap_label not in TRAP_LABELS:
             raise ValueError(f"rounds.trap_label = {self.trap_label!r} is not a label: use one of {list(TRAP_LABELS)}")
 
@@ -126,6 +133,13 @@ def paid_at_depth(reward, data, depth: int) -> float:
     """The mean ``R`` the reward pays the tree's nodes at ``depth`` (the nearest depth the tree has; ``tree_pay``)."""
     nearest = min(data.by_depth, key=lambda d: abs(d - depth))
     return _mean_paid(reward, data, data.by_depth[nearest][:256])
+
+
+def trap_threshold(reward, data, config: RoundsConfig, depth: int) -> float:
+    """The least pay that makes a failed state a trap: ``trap_share`` of the goal's pay, else ``depth``'s pay."""
+    if config.trap_share is None:
+        return paid_at_depth(reward, data, depth)
+    return config.trap_share * paid_at_depth(reward, data, 0)
 
 
 def paid_by_depth(reward, data, per_depth: int = 64) -> tuple:
@@ -211,7 +225,7 @@ def run_round(task: str, tree: str, checkpoint: Path, train_config, config: Roun
     if not record_path.exists():
         result = train_policy(run)
         reward, data = tree_pay(checkpoint, tree)
-        threshold = paid_at_depth(reward, data, depth)
+        threshold = trap_threshold(reward, data, config, depth)
         stall_label = None
         if config.stall_window > 0:
             depths, paid = paid_by_depth(reward, data)

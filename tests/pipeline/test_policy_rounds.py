@@ -18,8 +18,8 @@ import pytest
 import torch
 
 from drem_maniskill.drem.checkpoint import load_checkpoint
-from drem_maniskill.pipeline.policy_rounds import (RoundsConfig, paid_by_depth, run_rounds, stall_depth,
-                                                   stalled_steps, tree_pay)
+from drem_maniskill.pipeline.policy_rounds import (RoundsConfig, paid_at_depth, paid_by_depth, run_rounds,
+                                                   stall_depth, stalled_steps, trap_threshold, tree_pay)
 from drem_maniskill.pipeline.recipe import RecipeError, load_recipe
 
 # One round: 300 SAC steps (gradient steps after 200), two policy episodes, 60 fine-tuning iterations.
@@ -162,3 +162,16 @@ def test_traps_are_labelled_negative_depth_or_the_start_regions_depth_and_a_bad_
         RoundsConfig(trap_label="far")
     with pytest.raises(RecipeError, match="trap_label"):
         load_recipe("PegInHole-v1", "full", {"rounds": {"trap_label": "far"}})
+
+
+def test_a_trap_is_paid_at_least_negative_depths_pay_or_a_share_of_the_goals(tiny):
+    tree, config, checkpoint = tiny
+    reward, data = tree_pay(checkpoint, tree)
+    goal, deep = paid_at_depth(reward, data, 0), paid_at_depth(reward, data, 30)
+    assert goal > deep  # the reward rises toward the goal, so the two rules differ
+    assert trap_threshold(reward, data, ROUNDS, 30) == pytest.approx(deep)
+    share = dataclasses.replace(ROUNDS, trap_share=0.8)
+    assert trap_threshold(reward, data, share, 30) == pytest.approx(0.8 * goal)
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match=r"rounds.trap_share must be in \(0, 1\]"):
+            RoundsConfig(trap_share=bad)
