@@ -107,6 +107,7 @@ def test_a_variant_built_on_another_takes_its_demo_tree_reward_and_finished_roun
                  "rounds/drem.pt", "tree.h5"):
         (source / name).parent.mkdir(parents=True, exist_ok=True)
         (source / name).write_text(name)
+
     def files(folder: Path) -> list:
         return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
 

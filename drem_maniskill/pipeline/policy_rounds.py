@@ -60,7 +60,7 @@ class RoundsConfig:
     negative_depth: Optional[int] = None
     """The depth hard negatives are labelled with; None: 2 eps + 1."""
     trap_label: str = "depth"
-    """What the traps (failed states paid at least ``negative_depth``'s pay) are labelled: ``depth``,
+    """What the traps (the failed states a round finds paid like the goal) are labelled: ``depth``,
     ``negative_depth``; ``start``, the tree's start-region depth: a failed state paid like the goal is put as far from
     it as the start, since nothing in the tree says how far it is."""
     trap_share: Optional[float] = None
