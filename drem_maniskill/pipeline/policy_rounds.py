@@ -39,6 +39,8 @@ from typing import Optional, Sequence
 import numpy as np
 import torch
 
+from drem_maniskill.utils.checks import check_fraction
+
 from drem_maniskill.pipeline.negatives import paid_on_negatives, write_negatives
 from drem_maniskill.utils.atomic import write_json
 from drem_maniskill.utils.episodes import max_episode_steps
@@ -79,8 +81,7 @@ class RoundsConfig:
     """A failed episode stalled when its best reward in the window exceeds its best before it by less than this."""
 
     def __post_init__(self):
-        if self.trap_share is not None and not 0 < self.trap_share <= 1:
-            raise ValueError(f"rounds.trap_share must be in (0, 1] (a share of the goal's pay), got {self.trap_share}")
+        check_fraction("rounds.trap_share", self.trap_share, "the goal's pay", optional=True)
         if self.trap_label not in TRAP_LABELS:
             raise ValueError(f"rounds.trap_label = {self.trap_label!r} is not a label: use one of {list(TRAP_LABELS)}")
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Optional
 
 from drem_maniskill.envs import is_insertion_task
+from drem_maniskill.utils.checks import check_fraction
 
 PRESETS = ("state", "light", "image", "paper")
 # Episodes end at success, vector inputs normalised, half the action range: the setting where SAC learns the peg
@@ -205,8 +206,7 @@ class RLConfig:
             raise ValueError("shared_encoder (the critic trains the extractor, on by default) and "
                              "share_features_extractor (SB3's: the actor trains it) are two ways to share it; "
                              "pick one, e.g. shared_encoder=False")
-        if not 0 < self.action_scale <= 1:
-            raise ValueError(f"action_scale must be in (0, 1], got {self.action_scale}")
+        check_fraction("action_scale", self.action_scale, "the controller's range")
         if 128 % self.image_size:
             raise ValueError(f"image_size must divide the 128 px render (8, 16, 32, 64, 128), got {self.image_size}")
 

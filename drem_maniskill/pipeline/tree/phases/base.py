@@ -98,15 +98,6 @@ class PhaseContext:
                             enabled=self.progress)
 
 
-def check_fraction(key: str, value: float, of: str, optional: bool = False) -> None:
-    """Refuse a setting ``key`` outside (0, 1] (a fraction ``of`` something); ``optional``: None is allowed too."""
-    if optional and value is None:
-        return
-    if value is None or not 0 < value <= 1:
-        left_out = " or left out" if optional else ""
-        raise ValueError(f"{key} must be in (0, 1] (a fraction of {of}){left_out}, got {value}")
-
-
 def near_goal_last(reach: float, start_depth: int) -> int:
     """The last backward depth within the first ``reach`` of the loop's ``start_depth`` depths (at least 1)."""
     return max(1, math.ceil(reach * start_depth))

@@ -23,11 +23,11 @@ import numpy as np
 from drem_maniskill.pipeline.tree.phases.base import (
     Phase,
     PhaseContext,
-    check_fraction,
     grow_near_goal_lineages,
     near_goal_last,
     origin_poses,
 )
+from drem_maniskill.utils.checks import check_fraction
 
 
 @dataclass

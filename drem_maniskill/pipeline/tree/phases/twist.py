@@ -23,12 +23,12 @@ from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from drem_maniskill.pipeline.tree.phases.base import (
     Phase,
     PhaseContext,
-    check_fraction,
     full_range_rotation,
     grow_near_goal_lineages,
     origin_poses,
     rotation_vectors,
 )
+from drem_maniskill.utils.checks import check_fraction
 
 AXES_PER_ORIGIN = 6  # +x, -x, +y, -y, +z, -z of the end effector's frame at the origin
 
