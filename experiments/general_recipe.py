@@ -211,9 +211,10 @@ def reuse_trees(work: Path, source, with_reward: bool, grow: bool = False) -> No
     if not (source / "reward" / "drem.pt" if with_reward else source / "tree.h5").is_file():
         return
     work.mkdir(parents=True)
-    # Finished rounds, not rounds/drem.pt: that file marks the rounds stage done, and the variant adds a round.
-    rounds = sorted(p.relative_to(source) for p in source.glob("rounds/round_*")) if with_reward else []
-    for name in ("expert", "reward", *rounds) if with_reward else ("expert",):
+    names = ["expert"]
+    if with_reward:  # finished rounds, not rounds/drem.pt: that file marks the rounds stage done, and a round is added
+        names += ["reward", *sorted(p.relative_to(source) for p in source.glob("rounds/round_*"))]
+    for name in names:
         shutil.copytree(source / name, work / name)
     for tree in source.glob("tree*.h5"):
         shutil.copyfile(tree, work / (f"{tree.name}.partial" if grow else tree.name))
