@@ -69,6 +69,10 @@ FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 12, "step": 0.1}}}}
 # approach, for twice the steps: a part a centimetre or more beside an opening deeper than half the path, where policies
 # on the fine-slide reward stop, is a state the tree labels rather than one the reward guesses at.
 FAR_FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 24, "step": 0.1, "reach": 1.0, "approach_reach": 0.5}}}}
+# Lineages that slide and turn the part at once, each along its own random direction of the five, in fine steps from
+# every fourth depth of the whole path: every state the far-slide and start-round policies stopped in was beside the
+# opening, tilted and turned at once, a combination the one-move lineages never make.
+WANDER = {"sampler": {"phases": {"wander": {"depth": 24}}}}
 # Two policy rounds whose SAC runs half the 50,000 steps the reward is judged at, so its policy reaches the states
 # a trained policy stops in (on USB no policy inserted the plug before 17,500 steps).
 TWO_LONG_ROUNDS = {"rounds": {"rounds": 2, "sac_steps": 25000, "episodes": 20, "iterations": 1000}}
@@ -99,6 +103,8 @@ VARIANTS = {
                                                                 LONG_TRAINING, START_ROUND),
     "even_path_outward_twist_far_fine_slide_long_two_start_rounds": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE,
                                                                      LONG_TRAINING, TWO_START_ROUNDS),
+    "even_path_outward_twist_far_fine_slide_wander_long": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE, WANDER,
+                                                           LONG_TRAINING),
     "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -137,6 +143,8 @@ BUILDS_ON = {"three_rounds": ("base", True),
                  "even_path_outward_twist_far_fine_slide_long", True),
              "even_path_outward_twist_far_fine_slide_long_two_start_rounds": (
                  "even_path_outward_twist_far_fine_slide_long_start_round", True),
+             "even_path_outward_twist_far_fine_slide_wander_long": ("even_path_outward_twist_far_fine_slide_long",
+                                                                    False),
              "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
@@ -145,7 +153,8 @@ BUILDS_ON = {"three_rounds": ("base", True),
              "unrendered_twenty_small_trees_relative_poses_swap_three_rounds": (
                  "unrendered_twenty_small_trees_poses_swap_three_rounds", False)}
 GROWS = {"even_path_outward_twist_long", "even_path_outward_twist_slide_long",
-         "even_path_outward_twist_fine_slide_long", "even_path_outward_twist_far_fine_slide_long"}
+         "even_path_outward_twist_fine_slide_long", "even_path_outward_twist_far_fine_slide_long",
+         "even_path_outward_twist_far_fine_slide_wander_long"}
 RESULTS = Path("docs/results/general_recipe")
 RUN_FILES = ("config.json", "eval.csv", "reward_checkpoint.json")
 # float32, the env in the trainer's process: as the shipped comparison's runs.

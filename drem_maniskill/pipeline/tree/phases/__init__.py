@@ -10,7 +10,7 @@ Phase ``i`` of the registry draws its children from random stream ``FIRST_STREAM
 
 from __future__ import annotations
 
-from drem_maniskill.pipeline.tree.phases import face, goal_presses, outward, push, slide, turn, twist
+from drem_maniskill.pipeline.tree.phases import face, goal_presses, outward, push, slide, turn, twist, wander
 from drem_maniskill.pipeline.tree.phases.base import Phase, PhaseContext
 
 # The backward loop's random stream is 0, and its colour and placement streams take the entropy words 1 and 2
@@ -36,7 +36,7 @@ def stream_of(name: str) -> int:
 
 
 for _phase in (outward.PHASE, face.FACE, face.SIDE, push.PHASE, goal_presses.PHASE, turn.PHASE, twist.PHASE,
-               slide.PHASE):
+               slide.PHASE, wander.PHASE):
     register_phase(_phase)
 
 __all__ = ["FIRST_STREAM", "PHASES", "Phase", "PhaseContext", "register_phase", "stream_of"]

@@ -60,12 +60,17 @@ class SlideConfig:
         check_fraction("phases.slide.step", self.step, "the backward loop's range")
 
 
-def slide_directions(approach: np.ndarray, count: int) -> np.ndarray:
-    """Unit vectors ``[count, 3]`` across the unit vector ``approach``, spread evenly around it."""
+def across_basis(approach: np.ndarray) -> tuple:
+    """Two orthonormal vectors ``(u, v)`` [3] across the unit vector ``approach``."""
     helper = np.eye(3)[np.argmin(np.abs(approach))]  # the world axis farthest from the approach
     u = np.cross(approach, helper)
     u /= np.linalg.norm(u)
-    v = np.cross(approach, u)
+    return u, np.cross(approach, u)
+
+
+def slide_directions(approach: np.ndarray, count: int) -> np.ndarray:
+    """Unit vectors ``[count, 3]`` across the unit vector ``approach``, spread evenly around it."""
+    u, v = across_basis(approach)
     angle = 2 * np.pi * np.arange(count) / count
     return np.cos(angle)[:, None] * u + np.sin(angle)[:, None] * v
 
