@@ -347,6 +347,71 @@ def test_twist_step_turns_the_lineages_children_within_that_fraction_of_the_rota
             twist.TwistConfig(depth=3, step=step)
 
 
+def test_wander_directions_are_fixed_by_the_seed_and_read_across_the_approach_and_in_the_end_effectors_frame():
+    """Wander lineages: unit five-vectors drawn once from the sampler's seed; their first two components move the part
+    across the approach, the last three turn it about the end effector's axes at the origin (world frame)."""
+    import torch
+    from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
+
+    from drem_maniskill.pipeline.tree.phases.wander import wander_axes, wander_directions
+
+    directions = wander_directions(16, 0)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1)
+    np.testing.assert_array_equal(directions, wander_directions(16, 0))  # a resume draws the same lineages
+    assert not np.allclose(directions, wander_directions(16, 1))
+    approach = np.array([0.0, 0.6, -0.8])
+    q = np.array([[1.0, 0, 0, 0], [np.cos(0.4), np.sin(0.4), 0, 0]])  # upright, and turned 0.8 rad about x
+    slide, turn = wander_axes(q, approach, directions)
+    assert slide.shape == turn.shape == (32, 3)
+    np.testing.assert_allclose(slide @ approach, 0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(slide, axis=1), np.tile(np.linalg.norm(directions[:, :2], axis=1), 2))
+    np.testing.assert_allclose(slide[:16], slide[16:])  # the same plane from every origin
+    np.testing.assert_allclose(turn[:16], directions[:, 2:])  # the world's axes at an upright origin
+    frame = quaternion_to_matrix(torch.as_tensor(q[1])).numpy()
+    np.testing.assert_allclose(turn[16:], directions[:, 2:] @ frame.T, atol=1e-12)
+
+
+def test_wander_scores_children_in_step_units_and_draws_them_within_its_ranges(monkeypatch):
+    """phases.wander.step and turn_step: the children's translation spans ``step`` of the loop's range at the origin,
+    their rotation ``turn_step`` of the controller's step, and a child one step's reach along its lineage's direction
+    (either way: a slide or a turn) scores 1; a lineage ends below ``min_move`` of a step; a step outside (0, 1] is
+    refused."""
+    from types import SimpleNamespace
+
+    from drem_maniskill.pipeline.tree.phases import wander
+
+    grown = []
+    monkeypatch.setattr(wander, "origin_poses", lambda ctx, reach, every: np.array([[0.0, 0, 0, 1, 0, 0, 0]] * 2))
+    monkeypatch.setattr(wander, "near_goal_depths", lambda reach, every, start: [1, 5])
+    monkeypatch.setattr(wander, "approach_of", lambda path, reach, start: np.array([0.0, 0.0, -1.0]))
+    monkeypatch.setattr(wander, "grow_near_goal_lineages", lambda *args, **kwargs: grown.append((args, kwargs)))
+    ctx = SimpleNamespace(partial=Path("tree.h5"), start_depth=10, config=SimpleNamespace(action_scale=1.0, seed=3),
+                          backward_scale=lambda depth: 0.5 if depth == 1 else 1.0,
+                          sampler=SimpleNamespace(rotation_dims=[3, 4, 5], rotation_limit=0.05, translation_limit=0.02))
+    wander.sample_wander(ctx, wander.WanderConfig(depth=3, lineages=4, step=0.5, turn_step=0.25, min_move=0.3))
+    (args, kwargs), = grown
+    gained, least = args[5], args[6]
+    assert args[4] == 4 and kwargs["range_scale"] == 0.5 and least(0.123) == 0.3
+    actions = kwargs["shape"](np.full((2, 6), 0.25), 0.25)  # drawn within the loop's range 0.25
+    np.testing.assert_allclose(actions[:, :3], 0.25)
+    np.testing.assert_allclose(actions[:, 3:], 0.25)  # the rotation spans turn_step of the full range
+    slide, turn = wander.wander_axes(np.array([[1.0, 0, 0, 0]] * 2), np.array([0.0, 0.0, -1.0]),
+                                     wander.wander_directions(4, 3))
+    unit_slide = slide / np.linalg.norm(slide, axis=1, keepdims=True)
+    unit_turn = turn / np.linalg.norm(turn, axis=1, keepdims=True)
+    # Lineage 1 (origin depth 1, translation reach 0.5 * 0.5 * 2 cm) and lineage 6 (depth 5, reach 0.5 * 2 cm).
+    for lineage, metres in ((1, 0.005), (6, 0.01)):
+        moved = np.concatenate([unit_slide[lineage] * metres / np.linalg.norm(slide[lineage]), [1.0, 0, 0, 0]])
+        np.testing.assert_allclose(gained(moved[None], np.array([lineage])), 1.0)
+        angle = 0.05 * 0.25 / np.linalg.norm(turn[lineage])  # a turn about its axis worth one step of its direction
+        q = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * unit_turn[lineage]])
+        np.testing.assert_allclose(gained(np.concatenate([[0.0, 0, 0], q])[None], np.array([lineage])), 1.0)
+    for key in ("step", "turn_step"):
+        for value in (0.0, 1.5):
+            with pytest.raises(ValueError, match=f"phases.wander.{key}"):
+                wander.WanderConfig(depth=3, **{key: value})
+
+
 def test_even_path_splits_the_demos_long_steps_into_its_median_step_and_keeps_its_poses():
     """even_path: a demo of 2 mm steps ending in two 6 mm pushes walks the pushes in 2 mm steps too, through the
     recorded poses, the goal last; the quaternion takes the short way round and stays a unit one."""
@@ -689,6 +754,29 @@ def test_slide_lineages_move_the_part_across_its_approach_near_the_goal_and_end_
     _, _, gone = _grow_near_goal_lineages(pipeline, tmp_path, monkeypatch, "slide", dict(children=6, lineages=4), 4,
                                           moved, least=0.25 * 0.02)
     assert len(gone) and gone.max() > 0.02  # free lineages move more than a whole step's range in three
+
+
+@pytest.mark.slow
+def test_wander_lineages_slide_and_turn_the_part_at_once_and_end_where_it_cannot_move(pipeline, tmp_path, monkeypatch):
+    """Wander lineages: four per seed, each along its own direction of sliding across the approach and turning at once,
+    each step gaining at least ``min_move`` of a step (tiny: the whole 2 cm and 0.05 rad) along it."""
+    from drem_maniskill.pipeline.tree.phases.base import rotation_vectors
+    from drem_maniskill.pipeline.tree.phases.slide import approach_of
+    from drem_maniskill.pipeline.tree.phases.wander import wander_axes, wander_directions
+
+    with h5py.File(pipeline["tree"], "r") as f:
+        start = int(f.attrs["start_depth"])
+        q = f["tcp_pose"][()][[int(f[f"seeds/depth_{d}/node"][0]) for d in range(1, -(-start // 2) + 1, 4)], 3:7]
+    slide, turn = wander_axes(q.astype(np.float64), approach_of(pipeline["tree"], 0.5, start),
+                              wander_directions(4, _unrendered().seed))
+
+    def gained(tcp, origin, lineage):
+        return (np.einsum("nx,nx->n", tcp[:, :3] - origin[:, :3], slide[lineage]) / 0.02
+                + np.einsum("nx,nx->n", rotation_vectors(tcp[:, 3:7], origin[:, 3:7]), turn[lineage]) / 0.05)
+
+    settings = dict(children=6, lineages=4, approach_reach=None, step=1.0, turn_step=1.0)
+    _, _, gone = _grow_near_goal_lineages(pipeline, tmp_path, monkeypatch, "wander", settings, 4, gained, least=0.25)
+    assert len(gone) and gone.max() > 1.0  # free lineages go farther than a whole step in three
 
 
 @pytest.mark.slow
