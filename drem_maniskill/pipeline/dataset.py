@@ -93,7 +93,7 @@ class TreeDataset:
                     f"{path} has no start-region states: the tree never reached the start region, so it cannot "
                     "define task progress from the start. Re-sample with a larger --max-depth."
                 )
-            self.images = {c: self._resize(f[f"{c}_rgb"][()], config.image_size) for c in config.cameras}
+            self.images = {c: resize_images(f[f"{c}_rgb"], config.image_size) for c in config.cameras}
             self.ft = torch.as_tensor(f["ft"][()]).float()
             self.poses = None
             if "poses" in config.modalities:
@@ -148,7 +148,7 @@ class TreeDataset:
         if len(depth) == 0:
             return 0
         for c in self.images:
-            self.images[c] = torch.cat([self.images[c], self._resize(f[f"{c}_rgb"][()], config.image_size)])
+            self.images[c] = torch.cat([self.images[c], resize_images(f[f"{c}_rgb"], config.image_size)])
         self.ft = torch.cat([self.ft, torch.as_tensor(f["ft"][()]).float()])
         if self.poses is not None:
             if "poses" not in f:
@@ -168,15 +168,6 @@ class TreeDataset:
                 added += self._append(f, config, tree=False)
         self._index_depths()
         return added
-
-    @staticmethod
-    def _resize(images: np.ndarray, size: int) -> torch.Tensor:
-        x = torch.as_tensor(images)
-        if x.shape[1] == size:
-            return x.contiguous()
-        # Once, at load time: area averaging keeps thin features like the peg visible.
-        y = F.interpolate(x.permute(0, 3, 1, 2).float(), size=(size, size), mode="area")
-        return y.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).contiguous()
 
     def batch(self, idx: torch.Tensor) -> dict:
         """Raw model inputs of nodes ``idx``."""
@@ -207,6 +198,23 @@ class TreeDataset:
 # (``tree_file.tree_geometry``).
 NEAR_HEIGHT = 0.006  # above the opening: the expert's pre-insertion height
 CENTRED = 0.002  # off the axis: "a millimetre or two"
+
+
+def resize_images(images, size: int, chunk: int = 4096) -> torch.Tensor:
+    """uint8 images ``[n, size, size, 3]``, area-averaged from ``images`` ``[n, h, w, 3]`` (an array or h5py dataset).
+
+    Read and resized ``chunk`` images at a time: the float copy of a whole tree's camera (100,000 nodes at 128 px:
+    20 GB) would not fit beside the rest, while the result at 64 px is a quarter of the uint8 source.
+    """
+    if images.shape[1] == size:
+        return torch.as_tensor(images[()]).contiguous()
+    out = torch.empty((len(images), size, size, images.shape[-1]), dtype=torch.uint8)
+    for start in range(0, len(images), chunk):
+        x = torch.as_tensor(images[start:start + chunk]).permute(0, 3, 1, 2).float()
+        # Area averaging keeps thin features like the peg visible.
+        y = F.interpolate(x, size=(size, size), mode="area")
+        out[start:start + len(y)] = y.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1)
+    return out
 
 
 def tree_report(path: str, contact_force: float = 3.0) -> dict:

@@ -184,3 +184,27 @@ def test_training_with_travel_labels_reads_them_and_resumes_only_under_them(pipe
     older = {k: v for k, v in json.loads(state["config"]).items() if k != "travel_labels"}
     torch.save({**state, "config": json.dumps(older)}, state_path)
     assert resumes_at(config) == config.iterations and resumes_at(travelled) == 0
+
+
+def test_resize_images_reads_a_tree_camera_in_chunks_with_the_same_result(tmp_path):
+    """A camera read and resized a chunk at a time, from an array or straight from the tree file, matches the whole
+    array area-averaged at once; a camera already at the size comes back unchanged."""
+    import h5py
+    import numpy as np
+    import torch
+    import torch.nn.functional as F
+
+    from drem_maniskill.pipeline.dataset import resize_images
+
+    images = np.random.default_rng(0).integers(0, 256, size=(10, 16, 16, 3), dtype=np.uint8)
+    whole = F.interpolate(torch.as_tensor(images).permute(0, 3, 1, 2).float(), size=(8, 8), mode="area")
+    expected = whole.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1)
+    with h5py.File(tmp_path / "tree.h5", "w") as f:
+        f.create_dataset("fixed_rgb", data=images, chunks=(1, 16, 16, 3), compression="gzip")
+    with h5py.File(tmp_path / "tree.h5", "r") as f:
+        chunked = resize_images(f["fixed_rgb"], 8, chunk=3)
+        assert torch.equal(resize_images(f["fixed_rgb"], 16), torch.as_tensor(images))
+    assert chunked.dtype == torch.uint8 and chunked.shape == (10, 8, 8, 3)
+    assert torch.equal(chunked, expected)
+    assert torch.equal(resize_images(images, 8, chunk=4), expected)
+    assert not torch.equal(expected[:3], expected[3:6])  # distinct images: a chunk written to the wrong rows shows
