@@ -70,8 +70,8 @@ FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 12, "step": 0.1}}}}
 # on the fine-slide reward stop, is a state the tree labels rather than one the reward guesses at.
 FAR_FINE_SLIDE = {"sampler": {"phases": {"slide": {"depth": 24, "step": 0.1, "reach": 1.0, "approach_reach": 0.5}}}}
 # Lineages that slide and turn the part at once, each along its own random direction of the five, in fine steps from
-# every fourth depth of the whole path: every state the far-slide and start-round policies stopped in was beside the
-# opening, tilted and turned at once, a combination the one-move lineages never make.
+# every fourth depth of the whole path: a part beside the opening that is also tilted and turned, a state that lineages
+# of one move never reach.
 WANDER = {"sampler": {"phases": {"wander": {"depth": 24}}}}
 # Two policy rounds whose SAC runs half the 50,000 steps the reward is judged at, so its policy reaches the states
 # a trained policy stops in (on USB no policy inserted the plug before 17,500 steps).

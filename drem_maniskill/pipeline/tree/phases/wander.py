@@ -89,10 +89,10 @@ def sample_wander(ctx: PhaseContext, config: WanderConfig) -> None:
                            ctx.start_depth)
     slide, turn = wander_axes(origin[:, 3:7], approach, wander_directions(config.lineages, ctx.config.seed))
     origin = np.repeat(origin, config.lineages, axis=0)
-    depths = np.repeat(near_goal_depths(config.reach, config.every, ctx.start_depth), config.lineages)
     full = ctx.config.action_scale * config.turn_step
     # One step's reach each way: the translation range at the lineage's origin depth, the rotation range everywhere.
-    metres = np.array([ctx.backward_scale(int(d)) for d in depths]) * config.step * ctx.sampler.translation_limit
+    ranges = [ctx.backward_scale(d) for d in near_goal_depths(config.reach, config.every, ctx.start_depth)]
+    metres = np.repeat(ranges, config.lineages) * config.step * ctx.sampler.translation_limit
     radians = ctx.sampler.rotation_limit * full
 
     def gained(ee: np.ndarray, lineage: np.ndarray) -> np.ndarray:
