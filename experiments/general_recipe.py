@@ -84,6 +84,11 @@ START_ROUND = {"rounds": {"rounds": 1, "sac_steps": 50_000, "episodes": 20, "ite
 # least 0.8 of the goal's pay (check-reward's rule): that policy's stops are paid 0.76-0.84, under depth 9's 0.96, so
 # the depth rule finds none. Built on the start-round variant, whose round 1 found its traps by depth 9's pay.
 TWO_START_ROUNDS = {"rounds": {**START_ROUND["rounds"], "rounds": 2, "trap_share": 0.8}}
+# A third such round, its policy 50,000 steps of SAC on the second round's reward.
+THREE_START_ROUNDS = {"rounds": {**TWO_START_ROUNDS["rounds"], "rounds": 3}}
+# Start rounds whose traps are found by check-reward's rule from the first round on: the wander lineages' policies stop
+# where the reward pays 0.8-0.9 of the goal, under the pay of depth 9.
+SHARE_START_ROUND = {"rounds": {**TWO_START_ROUNDS["rounds"], "rounds": 1}}
 # The paper's 20,000 iterations.
 LONG_TRAINING = {"train": {"iterations": 20000}}
 # Variant -> the recipe parts merged over BASE, in order.
@@ -103,8 +108,12 @@ VARIANTS = {
                                                                 LONG_TRAINING, START_ROUND),
     "even_path_outward_twist_far_fine_slide_long_two_start_rounds": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE,
                                                                      LONG_TRAINING, TWO_START_ROUNDS),
+    "even_path_outward_twist_far_fine_slide_long_three_start_rounds": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE,
+                                                                       LONG_TRAINING, THREE_START_ROUNDS),
     "even_path_outward_twist_far_fine_slide_wander_long": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE, WANDER,
                                                            LONG_TRAINING),
+    "even_path_outward_twist_far_fine_slide_wander_long_start_round": (EVEN_PATH, OUTWARD, TWIST, FAR_FINE_SLIDE,
+                                                                       WANDER, LONG_TRAINING, SHARE_START_ROUND),
     "even_path_outward_twist_long_two_rounds": (EVEN_PATH, OUTWARD, TWIST, LONG_TRAINING, TWO_LONG_ROUNDS),
     "longer_training": ({"train": {"iterations": 5000}},),
     "fewer_children": ({"sampler": {"num_children": 50}},),
@@ -143,8 +152,12 @@ BUILDS_ON = {"three_rounds": ("base", True),
                  "even_path_outward_twist_far_fine_slide_long", True),
              "even_path_outward_twist_far_fine_slide_long_two_start_rounds": (
                  "even_path_outward_twist_far_fine_slide_long_start_round", True),
+             "even_path_outward_twist_far_fine_slide_long_three_start_rounds": (
+                 "even_path_outward_twist_far_fine_slide_long_two_start_rounds", True),
              "even_path_outward_twist_far_fine_slide_wander_long": ("even_path_outward_twist_far_fine_slide_long",
                                                                     False),
+             "even_path_outward_twist_far_fine_slide_wander_long_start_round": (
+                 "even_path_outward_twist_far_fine_slide_wander_long", True),
              "even_path_outward_twist_long_two_rounds": ("even_path_outward_twist_long", True),
              "five_trees_camera_poses": ("five_trees_poses", False),
              "five_trees_poses_three_rounds": ("five_trees_poses", True),
