@@ -186,11 +186,18 @@ def expert_ends(run: RLConfig, seeds: Sequence[int], compare: Optional[str] = No
 
 def given_run(config: CheckConfig) -> tuple:
     """``(its policy, its DREM checkpoint or None, the report's folder)`` of ``config.run``, a finished run."""
-    from drem_maniskill.rl.rewards import reward_checkpoint
+    from drem_maniskill.rl.rewards import reward_checkpoint, reward_spec
     from drem_maniskill.rl.run_policy import load_policy
 
     policy = load_policy(config.run)
     run = policy.config
+    learned = policy.checkpoint / f"{run.reward}.pt"
+    spec = reward_spec(run.reward)
+    if spec.checkpoint and spec.learner is not None and learned.is_file():
+        # A DREM reward fine-tuned during the run: judged as the drem reward of the checkpoint it ended on.
+        ended_on = torch.load(learned, weights_only=True)["checkpoint"]
+        run = dataclasses.replace(run, reward="drem", reward_checkpoint=ended_on)
+        policy = dataclasses.replace(policy, config=run)
     out = Path(config.out) if config.out else Path(config.run) / "check"
     return policy, reward_checkpoint(run.reward, run.task, run.reward_checkpoint), out
 

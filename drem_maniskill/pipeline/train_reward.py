@@ -121,6 +121,25 @@ def train_reward(dataset_path: str, out_dir: str, config: TrainConfig = TrainCon
     return export_reward(model, data, config, out / "drem.pt", {**forest, **(extra_header or {})})
 
 
+def train_config_of(header: dict) -> TrainConfig:
+    """The ``TrainConfig`` a checkpoint's header records (``export_reward``)."""
+    known = {f for f in TrainConfig.__dataclass_fields__ if f != "model"}
+    return TrainConfig(**{k: v for k, v in header["train"].items() if k in known},
+                       model=ModelConfig.from_dict(header["model"]))
+
+
+def fine_tune(data: TreeDataset, checkpoint: str, config: TrainConfig, path: Path,
+              extra_header: Optional[dict] = None) -> str:
+    """``config.iterations`` steps from ``checkpoint``'s weights on ``data``, loaded once by the caller (its negatives
+    added); writes the reward to ``path``. Not resumable: an interrupted fine-tuning is redone from ``checkpoint``."""
+    torch.manual_seed(config.seed)
+    model = _build_model(config, data, checkpoint)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    gen = torch.Generator().manual_seed(config.seed)
+    _optimise(model, opt, gen, data, config, 0, Path(path).parent / "tb", lambda at: None, progress=False)
+    return export_reward(model, data, config, Path(path), extra_header)
+
+
 def _build_model(config: TrainConfig, data: TreeDataset, init_checkpoint: Optional[str]) -> DREMModel:
     """The model to train, on ``config.device``: the scene-poses statistics of ``data``, the weights of
     ``init_checkpoint`` when given."""

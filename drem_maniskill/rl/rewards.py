@@ -85,7 +85,8 @@ def _drem_guarded(task: str, kwargs: dict) -> gym.Env:
         raise
 
 
-def _vice_learner(env: gym.Env, task: str, seed: int, options: dict, state: Optional[dict], make_kwargs: dict):
+def _vice_learner(env: gym.Env, task: str, seed: int, options: dict, state: Optional[dict], make_kwargs: dict,
+                  run_dir: Optional[Path] = None):
     """VICE-RAQ around the training env; goals from ``state`` when resuming, else from the scripted expert."""
     options = dict(options)
     goal_seeds = int(options.pop("goal_seeds", 10))
@@ -102,6 +103,15 @@ def _vice_learner(env: gym.Env, task: str, seed: int, options: dict, state: Opti
     return vice
 
 
+def _online_rounds_learner(env: gym.Env, task: str, seed: int, options: dict, state: Optional[dict],
+                           make_kwargs: dict, run_dir: Optional[Path] = None):
+    """``pipeline.online_rounds`` around the ``drem`` training env; its files in ``<run>/drem-rounds/``."""
+    from drem_maniskill.pipeline.online_rounds import OnlineRounds, OnlineRoundsConfig
+
+    work = Path(run_dir if run_dir is not None else Path("outputs") / "drem-rounds" / task / f"seed{seed}")
+    return OnlineRounds(env, OnlineRoundsConfig(**options), work / "drem-rounds", state)
+
+
 @dataclass(frozen=True)
 class RewardSpec:
     """How a reward is made: ``make(task, gym_kwargs) -> env``, the tasks it fits, an optional learner."""
@@ -112,7 +122,7 @@ class RewardSpec:
     stock_reward_mode: Optional[str] = None  # also on ManiSkill's own tasks that have this reward mode
     checkpoint: bool = False  # reads a DREM checkpoint (RLConfig.reward_checkpoint replaces the shipped one)
     image_only: bool = False  # the checkpoint it reads by default is the image-only one (drem_image.pt)
-    learner: Optional[Callable] = None  # (env, task, seed, options, state, gym_kwargs) -> LearnedReward
+    learner: Optional[Callable] = None  # (env, task, seed, options, state, gym_kwargs, run_dir) -> LearnedReward
 
     def supports(self, task: str) -> bool:
         """Whether this reward can be used on ``task``."""
@@ -144,6 +154,8 @@ REWARDS: dict[str, RewardSpec] = {
     "drem-guarded": RewardSpec("DREM scaled down where the model cannot reconstruct the state (not in the paper; "
                                "docs/rewards.md)", _drem_guarded, checkpoint=True),
     "drem-image": _drem_spec("DREM on images only, rewards/<task>/drem_image.pt", True),
+    "drem-rounds": RewardSpec("DREM fine-tuned during the run on its failed states paid like the goal (not in the "
+                              "paper; docs/rewards.md)", _drem(False), checkpoint=True, learner=_online_rounds_learner),
     # VICE replaces the reward; the env's sparse one is cheap and is kept in info["original_reward"].
     "vice": RewardSpec("VICE-RAQ success classifier on the images", env_reward_mode("sparse"), learner=_vice_learner),
 }

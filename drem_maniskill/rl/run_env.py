@@ -49,7 +49,8 @@ def make_env(config, learned_state: Optional[dict] = None, learned=None, for_eva
         if for_eval:
             env = learned.evaluation_env(env)
         else:
-            env = learned = spec.learner(env, task, config.seed, config.reward_kwargs, learned_state, kwargs)
+            env = learned = spec.learner(env, task, config.seed, config.reward_kwargs, learned_state, kwargs,
+                                         run_dir=config.run_dir)
     if config.action_scale != 1.0:
         # The policy's full range becomes a fraction of the controller's: finer steps for the same squashed output.
         scale = float(config.action_scale)

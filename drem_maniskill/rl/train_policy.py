@@ -135,6 +135,9 @@ class RunCallback(BaseCallback):
             self.last_update = self.num_timesteps
             for k, v in self.learned.update().items():
                 self.logger.record(f"{self.config.reward}/{k}", v)
+            relabel = getattr(self.learned, "relabel", None)
+            if relabel is not None:  # a reward that changed pays the buffer's transitions again
+                self.logger.record(f"{self.config.reward}/relabelled", relabel(self.model.replay_buffer))
         last = self.rows[-1]["steps"] if self.rows else -1
         due = self.num_timesteps // self.config.eval_every > max(last, 0) // self.config.eval_every
         if due or self.num_timesteps >= self.total:

@@ -1,0 +1,243 @@
+"""Policy rounds inside one SAC run (beyond the paper): the DREM reward fine-tuned on the run's own paid failures.
+
+The offline rounds (``pipeline.policy_rounds``) train a policy to the end, label the failed states the reward paid like
+the goal, fine-tune the reward and train the next policy from scratch; each next policy found the next such state. Here
+the same rule runs every ``update_every`` env steps of one run, as VICE-RAQ updates its classifier:
+
+- every step's reward inputs are kept (at the model's image size) with what the reward paid;
+- an episode that ends without success gives its states paid at least ``trap_share`` of the goal's ``R = 1`` as traps;
+- an update labels up to ``max_negatives`` of them at the tree's start depth (``RoundsConfig.trap_label = "start"``),
+  fine-tunes the reward ``iterations`` steps on them, the earlier updates' traps and the tree (``train_reward``), and
+  swaps the new reward into the training and evaluation envs;
+- ``relabel`` pays the replay buffer's kept transitions again with the new reward, so the critic meets the cut at once
+  rather than after the buffer has turned over.
+
+Each update's negatives and checkpoint are files under ``work``; the state (``state_dict``) names them, so a resumed run
+goes on from the last finished update. Transitions stepped before a resume are not kept, and are not paid again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from drem_maniskill.drem.checkpoint import resolve_checkpoint
+from drem_maniskill.drem.reward import DREM_FORMS, DREMReward
+from drem_maniskill.pipeline.dataset import resize_images
+from drem_maniskill.pipeline.negatives import write_negatives
+from drem_maniskill.utils.checks import check_fraction
+
+
+@dataclass
+class OnlineRoundsConfig:
+    """What ``reward_kwargs`` of a ``drem-rounds`` run set (``train-policy --reward-kwargs``)."""
+
+    tree: Optional[str] = None
+    """The progress tree the reward was trained on; None: ``tree.h5`` beside the checkpoint (a build's folder)."""
+    update_every: int = 5_000
+    """Env steps between updates."""
+    iterations: int = 500
+    """Fine-tuning iterations per update."""
+    trap_share: float = 0.8
+    """A failed episode's state is a trap when paid at least this share of the goal's ``R = 1`` (check-reward's
+    rule)."""
+    max_negatives: int = 500
+    """At most this many traps per update, evenly spread over those found."""
+    keep: int = 50_000
+    """The last this many transitions are kept for ``relabel`` (about 25 kB each at 64 px, two cameras)."""
+
+    def __post_init__(self):
+        check_fraction("trap_share", self.trap_share, "the goal's pay")
+        for name in ("update_every", "iterations", "max_negatives", "keep"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} = {getattr(self, name)} must be at least 1")
+
+
+class OnlineRounds(gym.Wrapper):
+    """A ``drem`` env whose reward learns from the run's failures; the ``LearnedReward`` of ``drem-rounds``."""
+
+    def __init__(self, env: gym.Env, config: OnlineRoundsConfig, work, state: Optional[dict] = None):
+        super().__init__(env)
+        u = env.unwrapped
+        if getattr(u, "drem_reward", None) is None:
+            raise ValueError("drem-rounds wraps an env made with reward_mode='drem'")
+        self.config, self.work = config, Path(work)
+        self.update_every = int(config.update_every)
+        self.shift = DREM_FORMS[u.drem_form]
+        self.checkpoint = str(resolve_checkpoint(u.env_id, u.drem_checkpoint))
+        self.tree = config.tree or str(Path(self.checkpoint).parent / "tree.h5")
+        if not Path(self.tree).is_file():
+            raise FileNotFoundError(f"drem-rounds fine-tunes the reward on its tree, and {self.tree} is not a file: "
+                                    "pass reward_kwargs tree=<the build's tree.h5>")
+        model = u.drem_reward.model.config
+        self.size, self.cameras, self.has_ft = model.image_size, list(model.cameras), "ft" in model.modalities
+        n, cap = u.num_envs, int(config.keep)
+        self.images = {c: torch.zeros(cap, n, self.size, self.size, 3, dtype=torch.uint8) for c in self.cameras}
+        self.ft = torch.zeros(cap, n, 8, 6)
+        self.paid = torch.zeros(cap, n)
+        self.steps = 0  # transitions recorded: one per env.step, the replay buffer's position
+        self.kept_from = 0  # the first step still held (later than any step before a resume)
+        self.episode = [[] for _ in range(n)]  # per env: its open episode's steps
+        self.success = np.zeros(n, bool)
+        self.pending: list = []  # (step, env) of failed episodes' traps, not yet labelled
+        self.updates, self.negatives, self.eval_envs = 0, [], []
+        self.found, self._data, self.label, self._changed = 0, None, None, False
+        if state is not None:
+            self.load_state_dict(state)
+
+    # ------------------------------------------------------------------ recording
+    def reset(self, **kwargs):
+        """Reset; the reset envs' episodes end here (``options['env_idx']`` where only some are)."""
+        idx = (kwargs.get("options") or {}).get("env_idx")
+        ended = range(len(self.episode)) if idx is None else [int(i) for i in torch.as_tensor(idx).reshape(-1)]
+        for i in ended:
+            self._end_episode(i)
+        return self.env.reset(**kwargs)
+
+    def _end_episode(self, i: int) -> None:
+        if not self.success[i]:
+            share = self.config.trap_share
+            self.pending += [(t, i) for t in self.episode[i]
+                             if t >= self.kept_from and float(self.paid[t % self.config.keep, i]) >= share]
+        self.episode[i], self.success[i] = [], False
+
+    def step(self, action):
+        """Step, and keep the state's reward inputs and what it was paid."""
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        inputs = self.env.unwrapped.drem_reward.last_inputs
+        slot = self.steps % self.config.keep
+        for c in self.cameras:
+            self.images[c][slot] = resize_images(inputs[c].cpu(), self.size)
+        if self.has_ft:
+            self.ft[slot] = inputs["ft"].cpu().float()
+        self.paid[slot] = torch.as_tensor(reward).reshape(-1).cpu().float() - self.shift
+        self.success |= torch.as_tensor(info["success"]).reshape(-1).cpu().numpy().astype(bool)
+        for ep in self.episode:
+            ep.append(self.steps)
+        self.steps += 1
+        return obs, reward, terminated, truncated, info
+
+    def _rows(self, picks: list) -> list:
+        rows = []
+        for t, i in picks:
+            slot = t % self.config.keep
+            inputs = {c: self.images[c][slot, i][None].clone() for c in self.cameras}
+            inputs["ft"] = self.ft[slot, i][None].clone()
+            rows.append((inputs, float(self.paid[slot, i]), i, t))
+        return rows
+
+    # ------------------------------------------------------------------ learning
+    def update(self) -> dict:
+        """Label the traps found since the last update, fine-tune the reward on them, swap it into the envs."""
+        from drem_maniskill.drem.checkpoint import load_checkpoint
+        from drem_maniskill.pipeline.train_reward import fine_tune, train_config_of
+
+        pending = [p for p in self.pending if p[0] >= max(self.kept_from, self.steps - self.config.keep)]
+        self.pending = []
+        if not pending:
+            return dict(traps=0, updates=self.updates)
+        if len(pending) > self.config.max_negatives:
+            picks = np.linspace(0, len(pending) - 1, self.config.max_negatives).round().astype(int)
+            pending = [pending[j] for j in picks]
+        data = self._tree_data()
+        k = self.updates + 1
+        rows = self._rows(pending)
+        folder = self.work / f"update_{k}"
+        folder.mkdir(parents=True, exist_ok=True)
+        write_negatives(folder / "negatives.h5", rows, self.label, self.cameras, self.has_ft)
+        config = train_config_of(load_checkpoint(self.checkpoint)[0])
+        data.add_negatives([folder / "negatives.h5"], config.model)
+        tuned = dataclasses.replace(config, iterations=self.config.iterations, seed=config.seed + k)
+        before = float(np.mean([r for _, r, _, _ in rows]))
+        record = dict(update=k, steps=self.steps, traps=len(rows), trap_label=self.label, paid_before=round(before, 4))
+        path = fine_tune(data, self.checkpoint, tuned, folder / "drem.pt", dict(online_rounds=record))
+        self.negatives, self.checkpoint, self.updates = [*self.negatives, str(folder / "negatives.h5")], path, k
+        self.found += len(rows)
+        self._swap_reward()
+        self._changed = True
+        after = float(self._pay({c: torch.cat([x[c] for x, *_ in rows]) for c in rows[0][0]}).mean())
+        return dict(traps=len(rows), paid_before=before, paid_after=after, updates=k)
+
+    def _tree_data(self):
+        """The tree (and every earlier update's traps) as training data, loaded at the first update."""
+        from drem_maniskill.drem.checkpoint import load_checkpoint
+        from drem_maniskill.pipeline.dataset import TreeDataset
+        from drem_maniskill.pipeline.train_reward import train_config_of
+        from drem_maniskill.pipeline.tree.tree_file import start_depth
+
+        if self._data is None:
+            config = train_config_of(load_checkpoint(self.checkpoint)[0])
+            self.label = start_depth(Path(self.tree))
+            if self.label is None:
+                raise ValueError(f"{self.tree} never reached the start region, the depth drem-rounds labels traps at: "
+                                 "sample it further")
+            data = TreeDataset(self.tree, config.model, travel=config.travel_labels)
+            data.add_negatives(self.negatives, config.model)
+            self._data = data
+        return self._data
+
+    def _swap_reward(self) -> None:
+        for env in [self.env, *self.eval_envs]:
+            u = env.unwrapped
+            u.drem_reward = DREMReward.from_checkpoint(self.checkpoint, env=u)
+            u.drem_checkpoint = self.checkpoint
+
+    @torch.no_grad()
+    def _pay(self, batch: dict, chunk: int = 512) -> torch.Tensor:
+        reward = self.env.unwrapped.drem_reward
+        n = len(next(iter(batch.values())))
+        device = next(reward.parameters()).device
+        return torch.cat([reward({k: v[s:s + chunk].to(device) for k, v in batch.items()}).cpu()
+                          for s in range(0, n, chunk)])
+
+    def relabel(self, replay_buffer) -> int:
+        """After an update that changed the reward, pay the kept transitions again in ``replay_buffer`` (SB3's, filled
+        one row per step since this run began); returns how many rows. A buffer out of step with the recorded steps
+        is left as it is."""
+        size = replay_buffer.buffer_size
+        changed, self._changed = self._changed, False
+        if not changed or replay_buffer.pos != self.steps % size:
+            return 0
+        first = max(self.kept_from, self.steps - self.config.keep, self.steps - size)
+        steps = torch.arange(first, self.steps)
+        if not len(steps):
+            return 0
+        slots = steps % self.config.keep
+        n = self.paid.shape[1]
+        batch = {c: self.images[c][slots].flatten(0, 1) for c in self.cameras}
+        batch["ft"] = self.ft[slots].flatten(0, 1)
+        paid = self._pay(batch).reshape(len(steps), n)
+        self.paid[slots] = paid
+        replay_buffer.rewards[(steps % size).numpy()] = (paid + self.shift).numpy().astype(replay_buffer.rewards.dtype)
+        return len(steps) * n
+
+    # ------------------------------------------------------------------ the run's interface
+    def evaluation_env(self, env: gym.Env) -> gym.Env:
+        """``env`` (a ``drem`` env), paid by this reward from now on, learning nothing from it."""
+        self.eval_envs.append(env)
+        if self.updates:
+            self._swap_reward()
+        return env
+
+    def state_dict(self) -> dict:
+        """The updates made, their files, and the step count the replay buffer is aligned with."""
+        return dict(config=dataclasses.asdict(self.config), updates=self.updates, checkpoint=self.checkpoint,
+                    negatives=list(self.negatives), steps=self.steps, found=self.found)
+
+    def load_state_dict(self, state: dict) -> None:
+        """Go on from ``state``: the last update's reward, counting steps on from where it was saved."""
+        for name in ("checkpoint", *state["negatives"]):
+            path = state["checkpoint"] if name == "checkpoint" else name
+            if not Path(path).is_file():
+                raise FileNotFoundError(f"the drem-rounds state names {path}, which is gone: rerun without resuming")
+        self.updates, self.checkpoint = int(state["updates"]), state["checkpoint"]
+        self.negatives, self.found = list(state["negatives"]), int(state.get("found", 0))
+        self.steps = self.kept_from = int(state["steps"])
+        if self.updates:
+            self._swap_reward()
