@@ -144,7 +144,7 @@ class RLConfig:
     """Options passed to the reward's learner.
 
     vice: VICEConfig overrides, and goal_seeds: the expert episodes (seeds 0..n-1) whose successful
-    images are the goals (default 10)."""
+    images are the goals (default 10). drem-rounds: ``pipeline.online_rounds.OnlineRoundsConfig`` fields."""
     reward_checkpoint: Optional[str] = None
     """The DREM rewards: this checkpoint instead of the shipped rewards/<task>/drem.pt."""
     drem_form: Optional[str] = None
