@@ -142,30 +142,35 @@ class TreeDataset:
         self._index_depths()
         return added
 
-    def _append(self, f, config: ModelConfig, tree: bool) -> int:
-        """Append the nodes of an open tree (``tree``) or negatives file; returns how many."""
+    def _append(self, f, config: ModelConfig, tree: bool, repeat: int = 1) -> int:
+        """Append the nodes of an open tree (``tree``) or negatives file, each ``repeat`` times; returns how many."""
         depth = torch.as_tensor(f["depth"][()]).long()
         if len(depth) == 0:
             return 0
+
+        def rows(x: torch.Tensor) -> torch.Tensor:
+            return x.repeat(repeat, *([1] * (x.dim() - 1))) if repeat > 1 else x
+
         for c in self.images:
-            self.images[c] = torch.cat([self.images[c], resize_images(f[f"{c}_rgb"], config.image_size)])
-        self.ft = torch.cat([self.ft, torch.as_tensor(f["ft"][()]).float()])
+            self.images[c] = torch.cat([self.images[c], rows(resize_images(f[f"{c}_rgb"], config.image_size))])
+        self.ft = torch.cat([self.ft, rows(torch.as_tensor(f["ft"][()]).float())])
         if self.poses is not None:
             if "poses" not in f:
                 raise ValueError(f"{f.filename} holds no scene poses, which this model reads; re-sample or "
                                  "re-collect it with this version")
-            self.poses = torch.cat([self.poses, torch.as_tensor(f["poses"][()]).float()])
-        self.depth = torch.cat([self.depth, depth])
-        self.label = torch.cat([self.label, self._labels(f, tree)])
-        return len(depth)
+            self.poses = torch.cat([self.poses, rows(torch.as_tensor(f["poses"][()]).float())])
+        self.depth = torch.cat([self.depth, rows(depth)])
+        self.label = torch.cat([self.label, rows(self._labels(f, tree))])
+        return len(depth) * repeat
 
-    def add_negatives(self, paths, config: ModelConfig) -> int:
-        """Append the negatives files ``paths`` (``pipeline.negatives``) as nodes at their labelled depths; returns how
-        many. Their cameras must be the tree's."""
+    def add_negatives(self, paths, config: ModelConfig, repeat: int = 1) -> int:
+        """Append the negatives files ``paths`` (``pipeline.negatives``) as nodes at their labelled depths, each
+        ``repeat`` times (so that a few are sampled as often as many would be); returns how many nodes. Their cameras
+        must be the tree's."""
         added = 0
         for path in paths:
             with open_negatives(path, list(self.images)) as f:
-                added += self._append(f, config, tree=False)
+                added += self._append(f, config, tree=False, repeat=int(repeat))
         self._index_depths()
         return added
 

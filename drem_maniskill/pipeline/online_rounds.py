@@ -49,11 +49,17 @@ class OnlineRoundsConfig:
     rule)."""
     max_negatives: int = 500
     """At most this many traps per update, evenly spread over those found."""
+    min_share: float = 0.005
+    """Each update's traps are repeated in the fine-tuning's nodes until they make up at least this share of the tree's
+    nodes: a handful among 100,000 nodes would hardly be sampled (an offline round's 300 among 50,000 cut their pay
+    from 0.98 to 0.36)."""
     keep: int = 50_000
     """The last this many transitions are kept for ``relabel`` (about 25 kB each at 64 px, two cameras)."""
 
     def __post_init__(self):
         check_fraction("trap_share", self.trap_share, "the goal's pay")
+        if not 0 <= self.min_share < 1:
+            raise ValueError(f"min_share = {self.min_share} is a share of the tree's nodes: give one in [0, 1)")
         for name in ("update_every", "iterations", "max_negatives", "keep"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)} must be at least 1")
@@ -87,7 +93,7 @@ class OnlineRounds(gym.Wrapper):
         self.success = np.zeros(n, bool)
         self.pending: list = []  # (step, env) of failed episodes' traps, not yet labelled
         self.updates, self.negatives, self.eval_envs = 0, [], []
-        self.found, self._data, self.label, self._changed = 0, None, None, False
+        self.found, self._data, self.label, self._changed, self.repeats = 0, None, None, False, []
         if state is not None:
             self.load_state_dict(state)
 
@@ -152,12 +158,15 @@ class OnlineRounds(gym.Wrapper):
         folder.mkdir(parents=True, exist_ok=True)
         write_negatives(folder / "negatives.h5", rows, self.label, self.cameras, self.has_ft)
         config = train_config_of(load_checkpoint(self.checkpoint)[0])
-        data.add_negatives([folder / "negatives.h5"], config.model)
+        repeat = max(1, int(np.ceil(self.config.min_share * self.tree_nodes / len(rows))))
+        data.add_negatives([folder / "negatives.h5"], config.model, repeat=repeat)
         tuned = dataclasses.replace(config, iterations=self.config.iterations, seed=config.seed + k)
         before = float(np.mean([r for _, r, _, _ in rows]))
-        record = dict(update=k, steps=self.steps, traps=len(rows), trap_label=self.label, paid_before=round(before, 4))
+        record = dict(update=k, steps=self.steps, traps=len(rows), trap_label=self.label, paid_before=round(before, 4),
+                      repeat=repeat)
         path = fine_tune(data, self.checkpoint, tuned, folder / "drem.pt", dict(online_rounds=record))
         self.negatives, self.checkpoint, self.updates = [*self.negatives, str(folder / "negatives.h5")], path, k
+        self.repeats.append(repeat)
         self.found += len(rows)
         self._swap_reward()
         self._changed = True
@@ -178,7 +187,9 @@ class OnlineRounds(gym.Wrapper):
                 raise ValueError(f"{self.tree} never reached the start region, the depth drem-rounds labels traps at: "
                                  "sample it further")
             data = TreeDataset(self.tree, config.model, travel=config.travel_labels)
-            data.add_negatives(self.negatives, config.model)
+            self.tree_nodes = len(data.depth)
+            for path, repeat in zip(self.negatives, self.repeats):
+                data.add_negatives([path], config.model, repeat=repeat)
             self._data = data
         return self._data
 
@@ -228,7 +239,7 @@ class OnlineRounds(gym.Wrapper):
     def state_dict(self) -> dict:
         """The updates made, their files, and the step count the replay buffer is aligned with."""
         return dict(config=dataclasses.asdict(self.config), updates=self.updates, checkpoint=self.checkpoint,
-                    negatives=list(self.negatives), steps=self.steps, found=self.found)
+                    negatives=list(self.negatives), repeats=list(self.repeats), steps=self.steps, found=self.found)
 
     def load_state_dict(self, state: dict) -> None:
         """Go on from ``state``: the last update's reward, counting steps on from where it was saved."""
@@ -238,6 +249,7 @@ class OnlineRounds(gym.Wrapper):
                 raise FileNotFoundError(f"the drem-rounds state names {path}, which is gone: rerun without resuming")
         self.updates, self.checkpoint = int(state["updates"]), state["checkpoint"]
         self.negatives, self.found = list(state["negatives"]), int(state.get("found", 0))
+        self.repeats = list(state.get("repeats", [1] * len(self.negatives)))
         self.steps = self.kept_from = int(state["steps"])
         if self.updates:
             self._swap_reward()

@@ -59,7 +59,7 @@ def test_an_update_labels_failed_episodes_paid_states_at_the_start_depth_and_pay
     tree, checkpoint = tiny
     env = _env(checkpoint)
     try:
-        config = OnlineRoundsConfig(tree=tree, iterations=60, trap_share=0.3, keep=64)
+        config = OnlineRoundsConfig(tree=tree, iterations=60, trap_share=0.3, keep=64, min_share=0.1)
         learner = OnlineRounds(env, config, tmp_path / "rounds")
         _episode(learner, 30, seed=2, success=True)
         _episode(learner, 30, seed=2)  # the same states as the first, which succeeded: none of those is a trap
@@ -76,6 +76,10 @@ def test_an_update_labels_failed_episodes_paid_states_at_the_start_depth_and_pay
         assert out["paid_after"] < out["paid_before"]
         header, _ = load_checkpoint(learner.checkpoint)
         assert header["online_rounds"]["trap_label"] == start_depth(Path(tree))
+        # A few traps among the tree's nodes are repeated to min_share of them, so the fine-tuning samples them.
+        nodes = len(h5py.File(tree, "r")["depth"])
+        assert header["online_rounds"]["repeat"] == int(np.ceil(0.1 * nodes / traps)) > 1
+        assert len(learner._data.depth) == nodes + traps * header["online_rounds"]["repeat"]
         with h5py.File(learner.negatives[-1], "r") as f:
             assert (f["depth"][()] == start_depth(Path(tree))).all() and sorted(f["step"][()]) == [
                 t for t, _ in sorted(pending)]
@@ -99,6 +103,7 @@ def test_an_update_labels_failed_episodes_paid_states_at_the_start_depth_and_pay
         state = learner.state_dict()
         again = OnlineRounds(_env(checkpoint), config, tmp_path / "rounds", state=state)
         assert again.unwrapped.drem_checkpoint == learner.checkpoint and again.steps == 60 and again.updates == 1
+        assert again.repeats == learner.repeats
         again.close()
 
 
@@ -108,6 +113,8 @@ def test_a_bad_setting_or_a_missing_tree_is_named(tiny, tmp_path):
         OnlineRoundsConfig(trap_share=0.0)
     with pytest.raises(ValueError, match="update_every"):
         OnlineRoundsConfig(update_every=0)
+    with pytest.raises(ValueError, match="min_share"):
+        OnlineRoundsConfig(min_share=1.5)
     env = _env(checkpoint)
     try:
         with pytest.raises(FileNotFoundError, match="reward_kwargs tree="):
