@@ -7,8 +7,9 @@ the same rule runs every ``update_every`` env steps of one run, as VICE-RAQ upda
 - every step's reward inputs are kept (at the model's image size) with what the reward paid;
 - an episode that ends without success gives its states paid at least ``trap_share`` of the goal's ``R = 1`` as traps;
 - an update labels up to ``max_negatives`` of them at the tree's start depth (``RoundsConfig.trap_label = "start"``),
-  fine-tunes the reward ``iterations`` steps on them, the earlier updates' traps and the tree (``train_reward``), and
-  swaps the new reward into the training and evaluation envs;
+  repeated to ``min_share`` of the tree's nodes, fine-tunes the reward ``iterations`` steps on them, the earlier
+  updates' traps and the tree (``train_reward.fine_tune``, the tree loaded once per run), and swaps the new reward
+  into the training and evaluation envs;
 - ``relabel`` pays the replay buffer's kept transitions again with the new reward, so the critic meets the cut at once
   rather than after the buffer has turned over.
 
