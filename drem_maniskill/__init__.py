@@ -4,7 +4,8 @@ Importing the package registers the tasks of ``drem_maniskill.envs.TASKS`` (``Pe
 ``USBInsertion-v1``) and their DREM-by-default aliases (``PegInHole-DREM-v1``,
 ``USBInsertion-DREM-v1``) in ManiSkill's registry and in gymnasium's, so
 ``gym.make("PegInHole-v1")`` works after ``import drem_maniskill`` and
-``gym.make("drem_maniskill:PegInHole-v1")`` works without it. The layers and the data's journey
+``gym.make("drem_maniskill:PegInHole-v1")`` works without it. It also registers the ``drem-rounds``
+reward (``pipeline.online_rounds``) in ``rl.rewards.REWARDS``. The layers and the data's journey
 through them are in docs/architecture.md.
 """
 
@@ -12,3 +13,4 @@ from drem_maniskill.utils import compat as _compat  # noqa: F401  (before any en
 from drem_maniskill.version import __version__  # noqa: F401,E402
 from drem_maniskill import envs  # noqa: F401,E402  (registers the tasks)
 from drem_maniskill.envs import TASKS, register_drem_env  # noqa: F401,E402
+from drem_maniskill.pipeline import online_rounds as _online_rounds  # noqa: F401,E402  (registers drem-rounds)

@@ -32,6 +32,7 @@ from drem_maniskill.drem.checkpoint import resolve_checkpoint
 from drem_maniskill.drem.reward import DREM_FORMS, DREMReward
 from drem_maniskill.pipeline.dataset import resize_images
 from drem_maniskill.pipeline.negatives import write_negatives
+from drem_maniskill.rl.rewards import REWARDS, RewardSpec, drem_make
 from drem_maniskill.utils.checks import check_fraction
 
 
@@ -254,3 +255,18 @@ class OnlineRounds(gym.Wrapper):
         self.steps = self.kept_from = int(state["steps"])
         if self.updates:
             self._swap_reward()
+
+
+def online_rounds_learner(env: gym.Env, task: str, seed: int, options: dict, state: Optional[dict],
+                          make_kwargs: dict, run_dir: Optional[Path] = None) -> OnlineRounds:
+    """``OnlineRounds`` around the ``drem`` training env (``RewardSpec.learner``); its files in
+    ``<run>/drem-rounds/``."""
+    work = Path(run_dir) if run_dir is not None else Path("outputs") / "drem-rounds" / task / f"seed{seed}"
+    return OnlineRounds(env, OnlineRoundsConfig(**options), work / "drem-rounds", state)
+
+
+# A reward of the run's table (``rl.rewards.REWARDS``), registered from this layer because it trains the reward:
+# ``import drem_maniskill`` imports this module, so every process that trains with it knows the name.
+REWARDS["drem-rounds"] = RewardSpec(
+    "DREM fine-tuned during the run on its failed states paid like the goal (not in the paper; docs/rewards.md)",
+    drem_make(False), checkpoint=True, learner=online_rounds_learner)

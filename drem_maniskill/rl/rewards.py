@@ -40,7 +40,10 @@ class LearnedReward(Protocol):
         """Restore a ``state_dict()``."""
 
     def evaluation_env(self, env: gym.Env) -> gym.Env:
-        """``env`` rewarded by this reward, learning nothing from it."""
+        """``env`` rewarded by this reward, learning nothing from it.
+
+        A learner may also give ``relabel(replay_buffer) -> int``: the run loop calls it after each ``update`` so the
+        buffer's transitions are paid by the updated reward (``pipeline.online_rounds``)."""
 
 
 def env_reward_mode(mode: str) -> Callable:
@@ -52,7 +55,7 @@ def env_reward_mode(mode: str) -> Callable:
     return make
 
 
-def _drem(image_only: bool) -> Callable:
+def drem_make(image_only: bool = False) -> Callable:
     """``make`` of DREM from the shipped checkpoint: the ``drem`` mode on our tasks, the wrapper on ManiSkill's."""
 
     def make(task: str, kwargs: dict) -> gym.Env:
@@ -76,7 +79,7 @@ def _drem_guarded(task: str, kwargs: dict) -> gym.Env:
     if kwargs.get("drem_form", "paper") != "paper":
         # The guard scales the reward towards 0, which raises a negative (shifted) reward instead of cutting it.
         raise ValueError("drem-guarded pays only the paper's form of R; use --drem-form paper, or the drem reward")
-    env = _drem(False)(task, kwargs)
+    env = drem_make(False)(task, kwargs)
     try:
         checkpoint = drem_checkpoints.resolve_checkpoint(task, kwargs.get("drem_checkpoint"))
         return SupportGuard(env, load_support(checkpoint.parent / "support.json"))
@@ -101,15 +104,6 @@ def _vice_learner(env: gym.Env, task: str, seed: int, options: dict, state: Opti
     if state is not None:
         vice.load_state_dict(state)
     return vice
-
-
-def _online_rounds_learner(env: gym.Env, task: str, seed: int, options: dict, state: Optional[dict],
-                           make_kwargs: dict, run_dir: Optional[Path] = None):
-    """``pipeline.online_rounds`` around the ``drem`` training env; its files in ``<run>/drem-rounds/``."""
-    from drem_maniskill.pipeline.online_rounds import OnlineRounds, OnlineRoundsConfig
-
-    work = Path(run_dir if run_dir is not None else Path("outputs") / "drem-rounds" / task / f"seed{seed}")
-    return OnlineRounds(env, OnlineRoundsConfig(**options), work / "drem-rounds", state)
 
 
 @dataclass(frozen=True)
@@ -141,7 +135,7 @@ def _reward_modes(task: str) -> tuple:
 
 def _drem_spec(about: str, image_only: bool, **kwargs) -> RewardSpec:
     """A DREM reward's spec: the env it makes and the checkpoint it reads agree on ``image_only``."""
-    return RewardSpec(about, _drem(image_only), checkpoint=True, image_only=image_only, **kwargs)
+    return RewardSpec(about, drem_make(image_only), checkpoint=True, image_only=image_only, **kwargs)
 
 
 REWARDS: dict[str, RewardSpec] = {
@@ -154,8 +148,6 @@ REWARDS: dict[str, RewardSpec] = {
     "drem-guarded": RewardSpec("DREM scaled down where the model cannot reconstruct the state (not in the paper; "
                                "docs/rewards.md)", _drem_guarded, checkpoint=True),
     "drem-image": _drem_spec("DREM on images only, rewards/<task>/drem_image.pt", True),
-    "drem-rounds": RewardSpec("DREM fine-tuned during the run on its failed states paid like the goal (not in the "
-                              "paper; docs/rewards.md)", _drem(False), checkpoint=True, learner=_online_rounds_learner),
     # VICE replaces the reward; the env's sparse one is cheap and is kept in info["original_reward"].
     "vice": RewardSpec("VICE-RAQ success classifier on the images", env_reward_mode("sparse"), learner=_vice_learner),
 }
