@@ -91,7 +91,7 @@ class OnlineRounds(gym.Wrapper):
         self.paid = torch.zeros(cap, n)
         self.steps = 0  # transitions recorded: one per env.step, the replay buffer's position
         self.kept_from = 0  # the first step still held (later than any step before a resume)
-        self.episode = [[] for _ in range(n)]  # per env: its open episode's steps
+        self.episode_start = np.zeros(n, np.int64)  # per env: the first step of its open episode
         self.success = np.zeros(n, bool)
         self.pending: list = []  # (step, env) of failed episodes' traps, not yet labelled
         self.updates, self.negatives, self.eval_envs = 0, [], []
@@ -103,17 +103,17 @@ class OnlineRounds(gym.Wrapper):
     def reset(self, **kwargs):
         """Reset; the reset envs' episodes end here (``options['env_idx']`` where only some are)."""
         idx = (kwargs.get("options") or {}).get("env_idx")
-        ended = range(len(self.episode)) if idx is None else [int(i) for i in torch.as_tensor(idx).reshape(-1)]
+        ended = range(len(self.success)) if idx is None else [int(i) for i in torch.as_tensor(idx).reshape(-1)]
         for i in ended:
             self._end_episode(i)
         return self.env.reset(**kwargs)
 
     def _end_episode(self, i: int) -> None:
         if not self.success[i]:
-            share = self.config.trap_share
-            self.pending += [(t, i) for t in self.episode[i]
-                             if t >= self.kept_from and float(self.paid[t % self.config.keep, i]) >= share]
-        self.episode[i], self.success[i] = [], False
+            steps = torch.arange(max(int(self.episode_start[i]), self.kept_from), self.steps)
+            traps = steps[self.paid[steps % self.config.keep, i] >= self.config.trap_share]
+            self.pending += [(int(t), i) for t in traps]
+        self.episode_start[i], self.success[i] = self.steps, False
 
     def step(self, action):
         """Step, and keep the state's reward inputs and what it was paid."""
@@ -126,8 +126,6 @@ class OnlineRounds(gym.Wrapper):
             self.ft[slot] = inputs["ft"].cpu().float()
         self.paid[slot] = torch.as_tensor(reward).reshape(-1).cpu().float() - self.shift
         self.success |= torch.as_tensor(info["success"]).reshape(-1).cpu().numpy().astype(bool)
-        for ep in self.episode:
-            ep.append(self.steps)
         self.steps += 1
         return obs, reward, terminated, truncated, info
 
@@ -153,13 +151,13 @@ class OnlineRounds(gym.Wrapper):
         if len(pending) > self.config.max_negatives:
             picks = np.linspace(0, len(pending) - 1, self.config.max_negatives).round().astype(int)
             pending = [pending[j] for j in picks]
-        data = self._tree_data()
+        config = train_config_of(load_checkpoint(self.checkpoint)[0])
+        data = self._tree_data(config)
         k = self.updates + 1
         rows = self._rows(pending)
         folder = self.work / f"update_{k}"
         folder.mkdir(parents=True, exist_ok=True)
         write_negatives(folder / "negatives.h5", rows, self.label, self.cameras, self.has_ft)
-        config = train_config_of(load_checkpoint(self.checkpoint)[0])
         repeat = max(1, int(np.ceil(self.config.min_share * self.tree_nodes / len(rows))))
         data.add_negatives([folder / "negatives.h5"], config.model, repeat=repeat)
         tuned = dataclasses.replace(config, iterations=self.config.iterations, seed=config.seed + k)
@@ -175,15 +173,13 @@ class OnlineRounds(gym.Wrapper):
         after = float(self._pay({c: torch.cat([x[c] for x, *_ in rows]) for c in rows[0][0]}).mean())
         return dict(traps=len(rows), paid_before=before, paid_after=after, updates=k)
 
-    def _tree_data(self):
-        """The tree (and every earlier update's traps) as training data, loaded at the first update."""
-        from drem_maniskill.drem.checkpoint import load_checkpoint
+    def _tree_data(self, config):
+        """The tree (and every earlier update's traps) as training data for ``config`` (a ``TrainConfig``), loaded at
+        the first update."""
         from drem_maniskill.pipeline.dataset import TreeDataset
-        from drem_maniskill.pipeline.train_reward import train_config_of
         from drem_maniskill.pipeline.tree.tree_file import start_depth
 
         if self._data is None:
-            config = train_config_of(load_checkpoint(self.checkpoint)[0])
             self.label = start_depth(Path(self.tree))
             if self.label is None:
                 raise ValueError(f"{self.tree} never reached the start region, the depth drem-rounds labels traps at: "
@@ -245,8 +241,7 @@ class OnlineRounds(gym.Wrapper):
 
     def load_state_dict(self, state: dict) -> None:
         """Go on from ``state``: the last update's reward, counting steps on from where it was saved."""
-        for name in ("checkpoint", *state["negatives"]):
-            path = state["checkpoint"] if name == "checkpoint" else name
+        for path in (state["checkpoint"], *state["negatives"]):
             if not Path(path).is_file():
                 raise FileNotFoundError(f"the drem-rounds state names {path}, which is gone: rerun without resuming")
         self.updates, self.checkpoint = int(state["updates"]), state["checkpoint"]
