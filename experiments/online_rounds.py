@@ -2,11 +2,14 @@
 
     python experiments/online_rounds.py --task DPegInHole-v1 \
         --variant even_path_outward_twist_far_fine_slide_wander_long --seeds 0
+    python experiments/online_rounds.py --task DPegInHole-v1 \
+        --variant even_path_outward_twist_fine_slide_long --seeds 0 --stall-label start
 
 Reads the build ``<out>/<task>/<variant>/`` (its ``drem.pt`` and ``tree.h5``) that ``experiments/general_recipe.py``
-made, trains ``<out>/<task>/sac/<variant>_online_rounds/seed<S>`` through the sweep, as the recipe's state runs, and
-copies each run's small files and every update's record (traps found, what they were paid before and after) into
-``docs/results/general_recipe/<task>/sac/<variant>_online_rounds/seed<S>/``.
+made, trains ``<out>/<task>/sac/<variant>_online_rounds/seed<S>`` (``..._online_stalls_<label>`` with stalls looked
+for) through the sweep, as the recipe's state runs, and copies each run's small files and every update's record
+(traps and stalls found, what they were paid before and after) into the same place under
+``docs/results/general_recipe/``.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ import general_recipe as g  # noqa: E402  (experiments/ is the folder)
 
 # Ten updates in a 50,000-step run, each as long a fine-tuning as an offline round's, on at most half its traps.
 ONLINE = dict(update_every=5_000, iterations=1_000, trap_share=0.8, max_negatives=500)
+# With stalls: a failed episode's last quarter, as the offline stall rounds searched.
+STALLS = dict(stall_window=0.25, stall_rise=0.02)
 
 
 def configs(task: str, variant: str, out: Path, seeds, steps: int, options: dict) -> list:
@@ -28,8 +33,9 @@ def configs(task: str, variant: str, out: Path, seeds, steps: int, options: dict
     import dataclasses
 
     build = out / task / variant
-    runs = g.drem_sac_configs([(task, build / "drem.pt", out / task / "sac" / f"{variant}_online_rounds")], seeds,
-                              steps)
+    name = f"{variant}_online_stalls_{options['stall_label']}" if options.get("stall_window") else \
+        f"{variant}_online_rounds"
+    runs = g.drem_sac_configs([(task, build / "drem.pt", out / task / "sac" / name)], seeds, steps)
     return [dataclasses.replace(c, reward="drem-rounds", reward_kwargs=dict(tree=str(build / "tree.h5"), **options))
             for c in runs]
 
@@ -59,11 +65,14 @@ def main() -> None:
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
     p.add_argument("--steps", type=int, default=50_000)
     p.add_argument("--out", default="outputs/general_recipe")
+    p.add_argument("--stall-label", choices=["start", "depth"], default=None,
+                   help="look for stalls too (STALLS), labelled so; default: traps only")
     args = p.parse_args()
     from drem_maniskill.rl.sweep import run_sweep
 
     out = Path(args.out)
-    runs = configs(args.task, args.variant, out, args.seeds, args.steps, ONLINE)
+    options = ONLINE if args.stall_label is None else dict(ONLINE, **STALLS, stall_label=args.stall_label)
+    runs = configs(args.task, args.variant, out, args.seeds, args.steps, options)
     run_sweep(runs, out, cpus_per_trial=2)
     for c in runs:
         dest = g.RESULTS / Path(c.out).relative_to(out)

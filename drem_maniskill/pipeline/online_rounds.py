@@ -13,6 +13,13 @@ the same rule runs every ``update_every`` env steps of one run, as VICE-RAQ upda
 - ``relabel`` pays the replay buffer's kept transitions again with the new reward, so the critic meets the cut at once
   rather than after the buffer has turned over.
 
+A policy also fails where the reward stops rising short of the goal, paid less than ``trap_share``: a plateau the trap
+rule cannot see. With ``stall_window > 0`` an episode without success whose best pay in its last ``stall_window`` share
+of steps beats its best before by less than ``stall_rise`` stalled there (``policy_rounds.stalled_steps``), and those
+steps join the update too, labelled at the start depth (``stall_label = "start"``: where a failed episode comes to rest
+is no progress) or ``eps + 1`` beyond the nearest tree depth the current reward pays no more than it pays the step
+(``"depth"``: the offline rounds' ``stall_depth``, so each update lowers a stall by one neighbourhood).
+
 Each update's negatives and checkpoint are files under ``work``; the state (``state_dict``) names them, so a resumed run
 goes on from the last finished update. Transitions stepped before a resume are not kept, and are not paid again.
 """
@@ -36,6 +43,9 @@ from drem_maniskill.rl.rewards import REWARDS, RewardSpec, drem_make
 from drem_maniskill.utils.checks import check_fraction
 
 
+STALL_LABELS = ("start", "depth")
+
+
 @dataclass
 class OnlineRoundsConfig:
     """What ``reward_kwargs`` of a ``drem-rounds`` run set (``train-policy --reward-kwargs``)."""
@@ -57,9 +67,20 @@ class OnlineRoundsConfig:
     from 0.98 to 0.36)."""
     keep: int = 50_000
     """The last this many transitions are kept for ``relabel`` (about 25 kB each at 64 px, two cameras)."""
+    stall_window: float = 0.0
+    """The share of a failed episode's last steps searched for a stall; 0: stalls are not looked for."""
+    stall_rise: float = 0.02
+    """A failed episode stalled when its best pay in the window beats its best before it by less than this."""
+    stall_label: str = "start"
+    """A stalled step's label: ``"start"``, the tree's start depth; ``"depth"``, ``eps + 1`` beyond the nearest depth
+    the reward pays no more than it pays the step."""
 
     def __post_init__(self):
         check_fraction("trap_share", self.trap_share, "the goal's pay")
+        if not 0 <= self.stall_window < 1:
+            raise ValueError(f"stall_window = {self.stall_window} is a share of an episode's steps: give one in [0, 1)")
+        if self.stall_label not in STALL_LABELS:
+            raise ValueError(f"stall_label = {self.stall_label!r}: give one of {STALL_LABELS}")
         if not 0 <= self.min_share < 1:
             raise ValueError(f"min_share = {self.min_share} is a share of the tree's nodes: give one in [0, 1)")
         for name in ("update_every", "iterations", "max_negatives", "keep"):
@@ -93,7 +114,7 @@ class OnlineRounds(gym.Wrapper):
         self.kept_from = 0  # the first step still held (later than any step before a resume)
         self.episode_start = np.zeros(n, np.int64)  # per env: the first step of its open episode
         self.success = np.zeros(n, bool)
-        self.pending: list = []  # (step, env) of failed episodes' traps, not yet labelled
+        self.pending: list = []  # (step, env, stalled) of failed episodes' traps and stalls, not yet labelled
         self.updates, self.negatives, self.eval_envs = 0, [], []
         self.found, self._data, self.label, self._changed, self.repeats = 0, None, None, False, []
         if state is not None:
@@ -110,9 +131,15 @@ class OnlineRounds(gym.Wrapper):
 
     def _end_episode(self, i: int) -> None:
         if not self.success[i]:
+            from drem_maniskill.pipeline.policy_rounds import stalled_steps
+
             steps = torch.arange(max(int(self.episode_start[i]), self.kept_from), self.steps)
-            traps = steps[self.paid[steps % self.config.keep, i] >= self.config.trap_share]
-            self.pending += [(int(t), i) for t in traps]
+            paid = self.paid[steps % self.config.keep, i]
+            trap = paid >= self.config.trap_share
+            self.pending += [(int(t), i, False) for t in steps[trap]]
+            if self.config.stall_window > 0 and len(steps):
+                window = stalled_steps(paid.tolist(), self.config.stall_window, self.config.stall_rise)
+                self.pending += [(int(steps[t]), i, True) for t in window if not trap[t]]
         self.episode_start[i], self.success[i] = self.steps, False
 
     def step(self, action):
@@ -154,16 +181,22 @@ class OnlineRounds(gym.Wrapper):
         config = train_config_of(load_checkpoint(self.checkpoint)[0])
         data = self._tree_data(config)
         k = self.updates + 1
-        rows = self._rows(pending)
+        rows = self._rows([(t, i) for t, i, _ in pending])
+        stalled = np.array([s for *_, s in pending], bool)
+        labels = np.full(len(rows), self.label, np.int64)
+        if stalled.any() and self.config.stall_label == "depth":
+            labels[stalled] = self._stall_depths([r for (_, r, _, _), s in zip(rows, stalled) if s], config)
         folder = self.work / f"update_{k}"
         folder.mkdir(parents=True, exist_ok=True)
-        write_negatives(folder / "negatives.h5", rows, self.label, self.cameras, self.has_ft)
+        write_negatives(folder / "negatives.h5", rows, labels, self.cameras, self.has_ft)
         repeat = max(1, int(np.ceil(self.config.min_share * self.tree_nodes / len(rows))))
         data.add_negatives([folder / "negatives.h5"], config.model, repeat=repeat)
         tuned = dataclasses.replace(config, iterations=self.config.iterations, seed=config.seed + k)
         before = float(np.mean([r for _, r, _, _ in rows]))
-        record = dict(update=k, steps=self.steps, traps=len(rows), trap_label=self.label, paid_before=round(before, 4),
-                      repeat=repeat)
+        record = dict(update=k, steps=self.steps, traps=len(rows), stalled=int(stalled.sum()), trap_label=self.label,
+                      paid_before=round(before, 4), repeat=repeat)
+        if stalled.any():
+            record["stall_labels"] = [int(labels[stalled].min()), int(labels[stalled].max())]
         path = fine_tune(data, self.checkpoint, tuned, folder / "drem.pt", dict(online_rounds=record))
         self.negatives, self.checkpoint, self.updates = [*self.negatives, str(folder / "negatives.h5")], path, k
         self.repeats.append(repeat)
@@ -171,7 +204,14 @@ class OnlineRounds(gym.Wrapper):
         self._swap_reward()
         self._changed = True
         after = float(self._pay({c: torch.cat([x[c] for x, *_ in rows]) for c in rows[0][0]}).mean())
-        return dict(traps=len(rows), paid_before=before, paid_after=after, updates=k)
+        return dict(traps=len(rows), stalled=int(stalled.sum()), paid_before=before, paid_after=after, updates=k)
+
+    def _stall_depths(self, paid: list, config) -> np.ndarray:
+        """``policy_rounds.stall_depth`` of each stalled step paid ``paid``, on the current reward's pay by depth."""
+        from drem_maniskill.pipeline.policy_rounds import paid_by_depth, stall_depth
+
+        depths, curve = paid_by_depth(self.env.unwrapped.drem_reward, self._data)
+        return np.array([stall_depth(r, depths, curve, config.eps) for r in paid], np.int64)
 
     def _tree_data(self, config):
         """The tree (and every earlier update's traps) as training data for ``config`` (a ``TrainConfig``), loaded at

@@ -66,7 +66,7 @@ def test_an_update_labels_failed_episodes_paid_states_at_the_start_depth_and_pay
         assert not learner.pending and (learner.paid[:30, 0] >= 0.3).any()
         learner.reset(seed=3)  # ends the second episode, failed
         failed = learner.paid[30:60, 0]
-        assert [t for t, _ in learner.pending] == [t for t in range(30, 60) if failed[t - 30] >= 0.3]
+        assert [t for t, _, _ in learner.pending] == [t for t in range(30, 60) if failed[t - 30] >= 0.3]
         pending = list(learner.pending)
         traps = len(learner.pending)
         assert traps > 0
@@ -82,7 +82,7 @@ def test_an_update_labels_failed_episodes_paid_states_at_the_start_depth_and_pay
         assert len(learner._data.depth) == nodes + traps * header["online_rounds"]["repeat"]
         with h5py.File(learner.negatives[-1], "r") as f:
             assert (f["depth"][()] == start_depth(Path(tree))).all() and sorted(f["step"][()]) == [
-                t for t, _ in sorted(pending)]
+                t for t, _, _ in sorted(pending)]
         # The training and evaluation envs are paid by the fine-tuned reward from now on.
         for e in (env, eval_env):
             assert e.unwrapped.drem_checkpoint == learner.checkpoint
@@ -107,6 +107,56 @@ def test_an_update_labels_failed_episodes_paid_states_at_the_start_depth_and_pay
         again.close()
 
 
+def _held_episode(learner, moving: int, held: int, seed: int) -> None:
+    """The expert's first ``moving`` steps, then ``held`` steps of a zero action: the episode comes to rest."""
+    obs, _ = learner.reset(seed=seed)
+    expert = get_policy("expert", learner.unwrapped)
+    for _ in range(moving):
+        obs, *_ = learner.step(expert(obs))
+    still = torch.zeros(learner.action_space.shape)
+    for _ in range(held):
+        learner.step(still)
+
+
+@pytest.mark.parametrize("label", ["start", "depth"])
+def test_a_failed_episode_that_comes_to_rest_gives_its_last_steps_as_stalls(tiny, tmp_path, label):
+    from drem_maniskill.pipeline.policy_rounds import paid_by_depth
+    from drem_maniskill.pipeline.train_reward import train_config_of
+
+    tree, checkpoint = tiny
+    env = _env(checkpoint)
+    try:
+        config = OnlineRoundsConfig(tree=tree, iterations=20, trap_share=1.0, keep=64, stall_window=0.25,
+                                    stall_rise=0.05, stall_label=label)
+        learner = OnlineRounds(env, config, tmp_path / "rounds")
+        _held_episode(learner, 8, 32, seed=2)
+        learner.reset(seed=3)
+        paid = learner.paid[:40, 0]
+        # At rest the pay stays put, so the last quarter beats the best before it by less than stall_rise.
+        assert float(paid[30:].max() - paid[:30].max()) < 0.05
+        assert [(t, s) for t, _, s in learner.pending] == [(t, True) for t in range(30, 40)]
+        # Without a stall window the same episode gives nothing: no step is paid like the goal.
+        plain = OnlineRounds(_env(checkpoint), dataclasses.replace(config, stall_window=0.0), tmp_path / "plain")
+        _held_episode(plain, 8, 32, seed=2)
+        plain.reset(seed=3)
+        assert not plain.pending
+        plain.close()
+        train = train_config_of(load_checkpoint(checkpoint)[0])
+        depths, curve = paid_by_depth(env.unwrapped.drem_reward, learner._tree_data(train))
+        out = learner.update()
+        assert out["stalled"] == 10 == out["traps"]
+        with h5py.File(learner.negatives[-1], "r") as f:
+            got, pay = f["depth"][()], f["reward"][()]
+        if label == "start":
+            assert (got == start_depth(Path(tree))).all()
+        else:
+            for d, r in zip(got, pay):  # eps + 1 beyond the nearest depth paid no more than the step
+                nearest = depths[curve <= r].min() if (curve <= r).any() else depths.max()
+                assert d == nearest + int(train.eps) + 1
+    finally:
+        env.close()
+
+
 def test_a_bad_setting_or_a_missing_tree_is_named(tiny, tmp_path):
     tree, checkpoint = tiny
     with pytest.raises(ValueError, match="trap_share"):
@@ -115,6 +165,10 @@ def test_a_bad_setting_or_a_missing_tree_is_named(tiny, tmp_path):
         OnlineRoundsConfig(update_every=0)
     with pytest.raises(ValueError, match="min_share"):
         OnlineRoundsConfig(min_share=1.5)
+    with pytest.raises(ValueError, match="stall_window"):
+        OnlineRoundsConfig(stall_window=1.0)
+    with pytest.raises(ValueError, match="stall_label"):
+        OnlineRoundsConfig(stall_label="goal")
     env = _env(checkpoint)
     try:
         with pytest.raises(FileNotFoundError, match="reward_kwargs tree="):
