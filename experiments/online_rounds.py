@@ -65,7 +65,9 @@ def main() -> None:
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
     p.add_argument("--steps", type=int, default=50_000)
     p.add_argument("--out", default="outputs/general_recipe")
-    p.add_argument("--stall-label", choices=["start", "depth"], default=None,
+    from drem_maniskill.pipeline.online_rounds import STALL_LABELS
+
+    p.add_argument("--stall-label", choices=STALL_LABELS, default=None,
                    help="look for stalls too (STALLS), labelled so; default: traps only")
     args = p.parse_args()
     from drem_maniskill.rl.sweep import run_sweep

@@ -39,6 +39,7 @@ from drem_maniskill.drem.checkpoint import resolve_checkpoint
 from drem_maniskill.drem.reward import DREM_FORMS, DREMReward
 from drem_maniskill.pipeline.dataset import resize_images
 from drem_maniskill.pipeline.negatives import write_negatives
+from drem_maniskill.pipeline.policy_rounds import paid_by_depth, stall_depth, stalled_steps
 from drem_maniskill.rl.rewards import REWARDS, RewardSpec, drem_make
 from drem_maniskill.utils.checks import check_fraction
 
@@ -131,8 +132,6 @@ class OnlineRounds(gym.Wrapper):
 
     def _end_episode(self, i: int) -> None:
         if not self.success[i]:
-            from drem_maniskill.pipeline.policy_rounds import stalled_steps
-
             steps = torch.arange(max(int(self.episode_start[i]), self.kept_from), self.steps)
             paid = self.paid[steps % self.config.keep, i]
             trap = paid >= self.config.trap_share
@@ -208,8 +207,6 @@ class OnlineRounds(gym.Wrapper):
 
     def _stall_depths(self, paid: list, config) -> np.ndarray:
         """``policy_rounds.stall_depth`` of each stalled step paid ``paid``, on the current reward's pay by depth."""
-        from drem_maniskill.pipeline.policy_rounds import paid_by_depth, stall_depth
-
         depths, curve = paid_by_depth(self.env.unwrapped.drem_reward, self._data)
         return np.array([stall_depth(r, depths, curve, config.eps) for r in paid], np.int64)
 

@@ -46,12 +46,16 @@ class _Buffer:
         self.rewards = np.full((size, n), 7.0, np.float32)
 
 
-def _episode(learner, steps: int, seed: int, success: bool = False) -> None:
-    """The expert's first ``steps`` (toward the goal, so a barely trained reward pays some of them)."""
+def _episode(learner, steps: int, seed: int, success: bool = False, held: int = 0) -> None:
+    """The expert's first ``steps`` (toward the goal, so a barely trained reward pays some of them), then ``held``
+    steps of a zero action: the episode comes to rest."""
     obs, _ = learner.reset(seed=seed)
     expert = get_policy("expert", learner.unwrapped)
     for _ in range(steps):
         obs, *_ = learner.step(expert(obs))
+    still = torch.zeros(learner.action_space.shape)
+    for _ in range(held):
+        learner.step(still)
     learner.success[:] = success
 
 
@@ -107,17 +111,6 @@ def test_an_update_labels_failed_episodes_paid_states_at_the_start_depth_and_pay
         again.close()
 
 
-def _held_episode(learner, moving: int, held: int, seed: int) -> None:
-    """The expert's first ``moving`` steps, then ``held`` steps of a zero action: the episode comes to rest."""
-    obs, _ = learner.reset(seed=seed)
-    expert = get_policy("expert", learner.unwrapped)
-    for _ in range(moving):
-        obs, *_ = learner.step(expert(obs))
-    still = torch.zeros(learner.action_space.shape)
-    for _ in range(held):
-        learner.step(still)
-
-
 @pytest.mark.parametrize("label", ["start", "depth"])
 def test_a_failed_episode_that_comes_to_rest_gives_its_last_steps_as_stalls(tiny, tmp_path, label):
     from drem_maniskill.pipeline.policy_rounds import paid_by_depth
@@ -129,7 +122,7 @@ def test_a_failed_episode_that_comes_to_rest_gives_its_last_steps_as_stalls(tiny
         config = OnlineRoundsConfig(tree=tree, iterations=20, trap_share=1.0, keep=64, stall_window=0.25,
                                     stall_rise=0.05, stall_label=label)
         learner = OnlineRounds(env, config, tmp_path / "rounds")
-        _held_episode(learner, 8, 32, seed=2)
+        _episode(learner, 8, seed=2, held=32)
         learner.reset(seed=3)
         paid = learner.paid[:40, 0]
         # At rest the pay stays put, so the last quarter beats the best before it by less than stall_rise.
@@ -137,7 +130,7 @@ def test_a_failed_episode_that_comes_to_rest_gives_its_last_steps_as_stalls(tiny
         assert [(t, s) for t, _, s in learner.pending] == [(t, True) for t in range(30, 40)]
         # Without a stall window the same episode gives nothing: no step is paid like the goal.
         plain = OnlineRounds(_env(checkpoint), dataclasses.replace(config, stall_window=0.0), tmp_path / "plain")
-        _held_episode(plain, 8, 32, seed=2)
+        _episode(plain, 8, seed=2, held=32)
         plain.reset(seed=3)
         assert not plain.pending
         plain.close()
