@@ -7,7 +7,7 @@ The run loop names no reward and no algorithm: both come from their tables by th
 
     config.json              the RLConfig of the run
     reward_checkpoint.json   a DREM reward's checkpoint: {"path", "sha256"}; a resume must read the same file
-    eval.csv                 steps, success_rate, mean_return, wall_time (one row per evaluation)
+    eval.csv                 steps, success_rate, mean_return, wall_time, train_success_rate (one row per evaluation)
     tb/                      TensorBoard (SB3's logger: train/*, rollout/*, eval/*, <reward>/* of a learned reward)
     sb3/from<N>/progress.csv SB3's csv log of the segment that started at step N
     checkpoints/latest.json  {"step": N, "dir": "step_N"}, replaced atomically after a checkpoint is complete
@@ -44,7 +44,7 @@ from drem_maniskill.utils.episodes import max_episode_steps
 from drem_maniskill.utils.lock import folder_lock
 from drem_maniskill.utils.progress import progress_bar
 
-EVAL_COLUMNS = ("steps", "success_rate", "mean_return", "wall_time")
+EVAL_COLUMNS = ("steps", "success_rate", "mean_return", "wall_time", "train_success_rate")
 # Fields a resumed run may change; anything else must match the saved config.
 RESUMABLE_FIELDS = ("steps", "out", "eval_every", "threads", "device")
 
@@ -58,13 +58,20 @@ def evaluate_policy(model, env, seeds: Sequence[int], horizon: int) -> dict:
                 mean_return=float(np.mean([ep.ret for ep in episodes])))
 
 
+def training_success_rate(model) -> float:
+    """SB3's success rate over its last finished training episodes (``rollout/success_rate``); 0 before one ends."""
+    done = getattr(model, "ep_success_buffer", None)
+    return float(np.mean(done)) if done else 0.0
+
+
 def read_eval_csv(path) -> list[dict]:
-    """Rows of an ``eval.csv`` as dicts of floats (``steps`` as int)."""
+    """Rows of an ``eval.csv`` as dicts of floats (``steps`` as int); a column an older file lacks, or left blank, is
+    absent from its rows."""
     path = Path(path)
     if not path.exists():
         return []
     with path.open() as f:
-        rows = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+        rows = [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(f)]
     for row in rows:
         row["steps"] = int(row["steps"])
     return rows
@@ -75,7 +82,7 @@ def _write_eval_csv(path: Path, rows: list[dict]) -> None:
         w = csv.DictWriter(f, fieldnames=EVAL_COLUMNS)
         w.writeheader()
         for row in rows:
-            w.writerow({k: row[k] for k in EVAL_COLUMNS})
+            w.writerow({k: row.get(k, "") for k in EVAL_COLUMNS})
 
 
 # ---------------------------------------------------------------------------- checkpoints
@@ -146,7 +153,10 @@ class RunCallback(BaseCallback):
 
     def _evaluate(self) -> None:
         result = evaluate_policy(self.model, self.eval_env, self.seeds, self.horizon)
-        row = dict(steps=self.num_timesteps, **result, wall_time=round(self._wall(), 2))
+        # Whether training episodes ever succeed tells a reward that pulls the policy to the goal from one that
+        # leaves it short, before the deterministic evaluation shows any success.
+        row = dict(steps=self.num_timesteps, **result, wall_time=round(self._wall(), 2),
+                   train_success_rate=round(training_success_rate(self.model), 4))
         self.rows.append(row)
         _write_eval_csv(self.run_dir / "eval.csv", self.rows)
         for k in ("success_rate", "mean_return"):

@@ -33,13 +33,43 @@ def test_train_policy_tiny_writes_eval_csv_and_checkpoint(tmp_path):
     run = tmp_path / "run"
     with (run / "eval.csv").open() as f:
         assert next(csv.reader(f)) == list(EVAL_COLUMNS)
-    assert [r["steps"] for r in read_eval_csv(run / "eval.csv")] == [0, 32, 64]
+    rows = read_eval_csv(run / "eval.csv")
+    assert [r["steps"] for r in rows] == [0, 32, 64]
+    assert [r["train_success_rate"] for r in rows] == [0.0, 0.0, 0.0]  # no training episode ends within 64 steps
     ckpt = latest_checkpoint(run)
     assert ckpt.name == "step_64" and (ckpt / "model.zip").exists() and (ckpt / "replay_buffer.pkl").exists()
     assert json.loads((ckpt / "progress.json").read_text())["num_timesteps"] == 64
     assert RLConfig.load(run / "config.json") == _tiny(tmp_path)
     assert list((run / "tb").glob("events.out.tfevents.*"))
     assert result["steps"] == 64 and result["resumed_from"] == 0
+
+
+def test_training_success_rate_is_sb3s_over_its_finished_episodes():
+    from collections import deque
+    from types import SimpleNamespace
+
+    from drem_maniskill.rl.train_policy import training_success_rate
+
+    assert training_success_rate(SimpleNamespace(ep_success_buffer=deque([True, False, False, True]))) == 0.5
+    assert training_success_rate(SimpleNamespace(ep_success_buffer=deque())) == 0.0
+    assert training_success_rate(SimpleNamespace(ep_success_buffer=None)) == 0.0  # before learn() sets it up
+
+
+def test_an_eval_csv_without_the_training_success_column_is_read_and_extended(tmp_path):
+    """A run written before the column resumes: its rows keep a blank, the rows after it carry the rate."""
+    from drem_maniskill.rl.train_policy import _write_eval_csv
+
+    path = tmp_path / "eval.csv"
+    path.write_text("steps,success_rate,mean_return,wall_time\n0,0.0,-50.0,10.0\n2500,0.1,-40.0,90.5\n")
+    rows = read_eval_csv(path)
+    assert rows[1] == dict(steps=2500, success_rate=0.1, mean_return=-40.0, wall_time=90.5)
+    rows.append(dict(steps=5000, success_rate=0.2, mean_return=-30.0, wall_time=180.0, train_success_rate=0.03))
+    _write_eval_csv(path, rows)
+    with path.open() as f:
+        assert next(csv.reader(f)) == list(EVAL_COLUMNS)
+    again = read_eval_csv(path)
+    assert "train_success_rate" not in again[0] and again[2]["train_success_rate"] == 0.03
+    assert again[:2] == rows[:2]
 
 
 def test_a_run_another_process_is_training_waits_for_it_then_fails_without_touching_the_run(tmp_path, monkeypatch):
