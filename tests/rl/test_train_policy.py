@@ -26,16 +26,19 @@ def _tiny(tmp_path, reward="dense", **kw) -> RLConfig:
 
 
 @pytest.mark.slow
-def test_train_policy_tiny_writes_eval_csv_and_checkpoint(tmp_path):
-    from drem_maniskill.rl.train_policy import train_policy
+def test_train_policy_tiny_writes_eval_csv_and_checkpoint(tmp_path, monkeypatch):
+    from drem_maniskill.rl import train_policy as tp
 
-    result = train_policy(_tiny(tmp_path))
+    # The rate read at each evaluation, from the model SB3 trains (its episode buffer set up from step 0 on).
+    monkeypatch.setattr(tp, "training_success_rate", lambda model: len(model.ep_success_buffer) + 0.25)
+    result = tp.train_policy(_tiny(tmp_path))
     run = tmp_path / "run"
     with (run / "eval.csv").open() as f:
         assert next(csv.reader(f)) == list(EVAL_COLUMNS)
     rows = read_eval_csv(run / "eval.csv")
     assert [r["steps"] for r in rows] == [0, 32, 64]
-    assert [r["train_success_rate"] for r in rows] == [0.0, 0.0, 0.0]  # no training episode ends within 64 steps
+    # One env, 50-step episodes: the first training episode has ended by step 64, none by 32.
+    assert [r["train_success_rate"] for r in rows] == [0.25, 0.25, 1.25]
     ckpt = latest_checkpoint(run)
     assert ckpt.name == "step_64" and (ckpt / "model.zip").exists() and (ckpt / "replay_buffer.pkl").exists()
     assert json.loads((ckpt / "progress.json").read_text())["num_timesteps"] == 64
