@@ -249,3 +249,21 @@ def test_the_readme_shows_the_sac_comparisons_success_at_50k(reward):
             want.append(f"{round(100 * row['final_success'])} %")
     assert _readme_row(reward)[1:] == want
 
+
+
+@pytest.mark.parametrize("doc", ["docs/drem.md"])
+def test_recipe_keys_a_page_adds_to_the_general_recipe_build_a_sampler_and_trainer(doc):
+    """Each TOML block of ``doc``, merged over the general recipe, gives a recipe whose sampler and training configs
+    build."""
+    import tomllib
+
+    from drem_maniskill.pipeline.recipe import GENERAL_DEFAULTS, merge, resolve
+
+    blocks = re.findall(r"```toml\n(.*?)```", (ROOT / doc).read_text(), re.S)
+    assert blocks, f"{doc} shows no recipe keys"
+    for block in blocks:
+        recipe = resolve(merge(GENERAL_DEFAULTS, tomllib.loads(block)), "SquarePegInHole-v1", "full", doc)
+        sampler = recipe.sampler_config()
+        recipe.train_config()
+        for name in tomllib.loads(block).get("sampler", {}).get("phases", {}):
+            assert name in sampler.phases, f"{doc}: phase {name} did not reach the sampler config"
