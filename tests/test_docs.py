@@ -250,7 +250,6 @@ def test_the_readme_shows_the_sac_comparisons_success_at_50k(reward):
     assert _readme_row(reward)[1:] == want
 
 
-
 @pytest.mark.parametrize("doc", ["docs/drem.md"])
 def test_recipe_keys_a_page_adds_to_the_general_recipe_build_a_sampler_and_trainer(doc):
     """Each TOML block of ``doc``, merged over the general recipe, gives a recipe whose sampler and training configs
