@@ -260,9 +260,9 @@ def test_recipe_keys_a_page_adds_to_the_general_recipe_build_a_sampler_and_train
 
     blocks = re.findall(r"```toml\n(.*?)```", (ROOT / doc).read_text(), re.S)
     assert blocks, f"{doc} shows no recipe keys"
-    for block in blocks:
-        recipe = resolve(merge(GENERAL_DEFAULTS, tomllib.loads(block)), "SquarePegInHole-v1", "full", doc)
+    for block in map(tomllib.loads, blocks):
+        recipe = resolve(merge(GENERAL_DEFAULTS, block), "SquarePegInHole-v1", "full", doc)
         sampler = recipe.sampler_config()
         recipe.train_config()
-        for name in tomllib.loads(block).get("sampler", {}).get("phases", {}):
+        for name in block.get("sampler", {}).get("phases", {}):
             assert name in sampler.phases, f"{doc}: phase {name} did not reach the sampler config"
